@@ -1,0 +1,1 @@
+"""Runners for external reference SPH codes (PySPH, SPlisHSPlasH) used by ``sph bench``."""

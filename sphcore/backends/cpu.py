@@ -1,0 +1,312 @@
+"""CPU drivers: one ``@njit(parallel=True)`` function per stage, gathering over neighbour lists.
+
+Every driver loops over owned particles i (``prange``), visits i's neighbours j in list order and
+writes only row i (gather, never scatter: no atomics, no races, reproducible sums). Integer choices
+(kernel, EOS, viscosity model, integrator, whether any axis is periodic) are compile-time literals
+(``numba.literally``): each scene compiles, and caches, a driver containing only the branches it
+uses.
+"""
+import math
+
+from numba import literally, njit, prange
+
+from sphcore.backends.literal import literal_dispatch
+from sphcore.physics.density import density_pair
+from sphcore.physics.eos import pressure
+from sphcore.physics.external import body_acceleration
+from sphcore.physics.kernels import dw_dr, lap_w_viscosity, w
+from sphcore.physics.pressure import pressure_pair
+from sphcore.physics.surface_tension import colour_gradient_pair, colour_laplacian_pair, surface_tension_factor
+from sphcore.physics.viscosity import artificial_pair, morris_pair, muller_pair
+from sphcore.physics.vorticity import confinement, curl_pair
+from sphcore.physics.walls import signed_distance, table_lookup
+from sphcore.physics.xsph import xsph_pair
+
+
+@njit(cache=True, inline="always")
+def separation(periodic, x, i, j, prm):
+    """x_ij = x_i - x_j with the minimum-image convention on periodic axes."""
+    dx = x[i, 0] - x[j, 0]
+    dy = x[i, 1] - x[j, 1]
+    dz = x[i, 2] - x[j, 2]
+    if periodic:
+        if prm.period_x > 0.0:
+            dx -= prm.period_x * math.floor(dx / prm.period_x + 0.5)
+        if prm.period_y > 0.0:
+            dy -= prm.period_y * math.floor(dy / prm.period_y + 0.5)
+        if prm.period_z > 0.0:
+            dz -= prm.period_z * math.floor(dz / prm.period_z + 0.5)
+    return dx, dy, dz
+
+
+@literal_dispatch(3)
+@njit(cache=True, parallel=True)
+def compute_density(kernel, eos, periodic, prm, n, x, m, nbr, counts, wall_kind, wall_data, phi_table, rho, p):
+    """rho_i = m_i W(0) + sum_j m_j W_ij + rho0 Phi(d_i);  p_i = EOS(rho_i).   (density.py, eos.py)"""
+    literally(kernel)
+    literally(eos)
+    literally(periodic)
+    for i in prange(n):
+        rho_i = m[i] * prm.w0
+        for k in range(counts[i]):
+            j = nbr[i, k]
+            dx, dy, dz = separation(periodic, x, i, j, prm)
+            r_ij = math.sqrt(dx * dx + dy * dy + dz * dz)
+            rho_i += density_pair(kernel, m[j], r_ij, prm.H, prm.s_w)
+        for q in range(wall_kind.shape[0]):
+            d, _, _, _ = signed_distance(wall_kind[q], wall_data[q], x[i, 0], x[i, 1], x[i, 2])
+            if d < prm.H:
+                rho_i += prm.rho0 * table_lookup(phi_table, d, prm.H)
+        rho[i] = rho_i
+        p[i] = pressure(eos, rho_i, prm.rho0, prm.c0, prm.clamp_negative)
+
+
+@literal_dispatch(3)
+@njit(cache=True, parallel=True)
+def compute_acceleration(kernel, viscosity, periodic, prm, n, x, v, m, rho, p, nbr, counts, wall_kind, wall_data,
+                         g_table, a):
+    """a_i = pressure + viscosity + body force + wall pressure.   (pressure.py, viscosity.py,
+    external.py, walls.py)"""
+    literally(kernel)
+    literally(viscosity)
+    literally(periodic)
+    for i in prange(n):
+        bx, by, bz = body_acceleration(prm)
+        ax = bx * 1.0
+        ay = by * 1.0
+        az = bz * 1.0
+        rho_i = rho[i]
+        p_i = p[i]
+        for k in range(counts[i]):
+            j = nbr[i, k]
+            dx, dy, dz = separation(periodic, x, i, j, prm)
+            r2 = dx * dx + dy * dy + dz * dz
+            if r2 == 0.0:
+                continue  # coincident particles: no direction, no pressure force
+            r_ij = math.sqrt(r2)
+            dw = dw_dr(kernel, r_ij, prm.H, prm.s_g)
+            dw_over_r = dw / r_ij
+            f = pressure_pair(m[j], p_i, rho_i, p[j], rho[j], dw) / r_ij
+            if viscosity == 1:  # Viscosity.ARTIFICIAL
+                vdotx = ((v[i, 0] - v[j, 0]) * dx + (v[i, 1] - v[j, 1]) * dy + (v[i, 2] - v[j, 2]) * dz)
+                f += artificial_pair(m[j], vdotx, r2, rho_i, rho[j], dw_over_r, prm.alpha, prm.c0, prm.h)
+            ax += f * dx
+            ay += f * dy
+            az += f * dz
+            if viscosity == 2:  # Viscosity.MULLER: along v_j - v_i
+                g = muller_pair(m[j], rho_i, rho[j], lap_w_viscosity(r_ij, prm.H, prm.s_l), prm.mu)
+                ax += g * (v[j, 0] - v[i, 0])
+                ay += g * (v[j, 1] - v[i, 1])
+                az += g * (v[j, 2] - v[i, 2])
+            elif viscosity == 3:  # Viscosity.MORRIS: along v_i - v_j
+                g = morris_pair(m[j], r2, rho_i, rho[j], dw_over_r, prm.mu, prm.h)
+                ax += g * (v[i, 0] - v[j, 0])
+                ay += g * (v[i, 1] - v[j, 1])
+                az += g * (v[i, 2] - v[j, 2])
+        p_wall = max(p_i, 0.0)
+        if p_wall > 0.0:
+            for q in range(wall_kind.shape[0]):
+                d, nx, ny, nz = signed_distance(wall_kind[q], wall_data[q], x[i, 0], x[i, 1], x[i, 2])
+                if d < prm.H:
+                    s = 2.0 * p_wall * prm.rho0 / (rho_i * rho_i) * abs(table_lookup(g_table, d, prm.H))
+                    ax += s * nx
+                    ay += s * ny
+                    az += s * nz
+        a[i, 0] = ax
+        a[i, 1] = ay
+        a[i, 2] = az
+
+
+@literal_dispatch(2)
+@njit(cache=True, parallel=True)
+def add_surface_tension(kernel, periodic, prm, n, x, m, rho, nbr, counts, a):
+    """Colour-field surface tension, a_i += -sigma lap c_i n_i / (|n_i| rho_i).   (surface_tension.py)"""
+    literally(kernel)
+    literally(periodic)
+    for i in prange(n):
+        gx = 0.0 * prm.H
+        gy = 0.0 * prm.H
+        gz = 0.0 * prm.H
+        lap_c = 0.0 * prm.H
+        for k in range(counts[i]):
+            j = nbr[i, k]
+            dx, dy, dz = separation(periodic, x, i, j, prm)
+            r2 = dx * dx + dy * dy + dz * dz
+            if r2 == 0.0:
+                continue
+            r_ij = math.sqrt(r2)
+            f = colour_gradient_pair(m[j], rho[j], dw_dr(kernel, r_ij, prm.H, prm.s_g) / r_ij)
+            gx += f * dx
+            gy += f * dy
+            gz += f * dz
+            lap_c += colour_laplacian_pair(m[j], rho[j], lap_w_viscosity(r_ij, prm.H, prm.s_l))
+        norm = math.sqrt(gx * gx + gy * gy + gz * gz)
+        s = surface_tension_factor(prm.sigma, lap_c, norm, rho[i], prm.st_threshold)
+        a[i, 0] += s * gx
+        a[i, 1] += s * gy
+        a[i, 2] += s * gz
+
+
+@literal_dispatch(2)
+@njit(cache=True, parallel=True)
+def compute_vorticity(kernel, periodic, prm, n, x, v, m, rho, nbr, counts, omega):
+    """omega_i = sum_j m_j / rho_j (v_j - v_i) x grad W_ij.   (vorticity.py)"""
+    literally(kernel)
+    literally(periodic)
+    for i in prange(n):
+        ox = 0.0 * prm.H
+        oy = 0.0 * prm.H
+        oz = 0.0 * prm.H
+        for k in range(counts[i]):
+            j = nbr[i, k]
+            dx, dy, dz = separation(periodic, x, i, j, prm)
+            r2 = dx * dx + dy * dy + dz * dz
+            if r2 == 0.0:
+                continue
+            r_ij = math.sqrt(r2)
+            g = dw_dr(kernel, r_ij, prm.H, prm.s_g) / r_ij
+            cx, cy, cz = curl_pair(m[j] / rho[j], v[j, 0] - v[i, 0], v[j, 1] - v[i, 1], v[j, 2] - v[i, 2],
+                                   g * dx, g * dy, g * dz)
+            ox += cx
+            oy += cy
+            oz += cz
+        omega[i, 0] = ox
+        omega[i, 1] = oy
+        omega[i, 2] = oz
+
+
+@literal_dispatch(2)
+@njit(cache=True, parallel=True)
+def add_vorticity_confinement(kernel, periodic, prm, n, x, m, rho, omega, nbr, counts, a):
+    """a_i += eps N_i x omega_i, N = eta/|eta|, eta_i = sum_j m_j/rho_j |omega_j| grad W_ij."""
+    literally(kernel)
+    literally(periodic)
+    for i in prange(n):
+        ex = 0.0 * prm.H
+        ey = 0.0 * prm.H
+        ez = 0.0 * prm.H
+        for k in range(counts[i]):
+            j = nbr[i, k]
+            dx, dy, dz = separation(periodic, x, i, j, prm)
+            r2 = dx * dx + dy * dy + dz * dz
+            if r2 == 0.0:
+                continue
+            r_ij = math.sqrt(r2)
+            wj = math.sqrt(omega[j, 0] ** 2 + omega[j, 1] ** 2 + omega[j, 2] ** 2)
+            g = m[j] / rho[j] * wj * dw_dr(kernel, r_ij, prm.H, prm.s_g) / r_ij
+            ex += g * dx
+            ey += g * dy
+            ez += g * dz
+        norm = math.sqrt(ex * ex + ey * ey + ez * ez)
+        if norm > 0.0:
+            fx, fy, fz = confinement(prm.vorticity_eps, ex / norm, ey / norm, ez / norm,
+                                     omega[i, 0], omega[i, 1], omega[i, 2])
+            a[i, 0] += fx
+            a[i, 1] += fy
+            a[i, 2] += fz
+
+
+@literal_dispatch(2)
+@njit(cache=True, parallel=True)
+def compute_xsph(kernel, periodic, prm, n, x, v, m, rho, nbr, counts, dv):
+    """dv_i = eps sum_j m_j / rho_ij (v_j - v_i) W_ij (the drift uses v + dv).   (xsph.py)"""
+    literally(kernel)
+    literally(periodic)
+    for i in prange(n):
+        sx = 0.0 * prm.H
+        sy = 0.0 * prm.H
+        sz = 0.0 * prm.H
+        for k in range(counts[i]):
+            j = nbr[i, k]
+            dx, dy, dz = separation(periodic, x, i, j, prm)
+            r_ij = math.sqrt(dx * dx + dy * dy + dz * dz)
+            f = xsph_pair(m[j], rho[i], rho[j], w(kernel, r_ij, prm.H, prm.s_w))
+            sx += f * (v[j, 0] - v[i, 0])
+            sy += f * (v[j, 1] - v[i, 1])
+            sz += f * (v[j, 2] - v[i, 2])
+        dv[i, 0] = prm.xsph_eps * sx
+        dv[i, 1] = prm.xsph_eps * sy
+        dv[i, 2] = prm.xsph_eps * sz
+
+
+@literal_dispatch(2)
+@njit(cache=True, parallel=True)
+def integrate(integrator, use_xsph, n, x, v, a, dv, dt, dt_prev):
+    """Symplectic Euler: v += dt a; x += dt v.  Leapfrog KDK with staggered velocities:
+    v_{n+1/2} = v_{n-1/2} + (dt_prev + dt)/2 a_n; x += dt v_{n+1/2}. XSPH adds dv to the drift."""
+    literally(integrator)
+    literally(use_xsph)
+    if integrator == 0:
+        kick = dt
+    else:
+        kick = 0.5 * (dt_prev + dt)
+    for i in prange(n):
+        for c in range(3):
+            v[i, c] += kick * a[i, c]
+            if use_xsph:
+                x[i, c] += dt * (v[i, c] + dv[i, c])
+            else:
+                x[i, c] += dt * v[i, c]
+
+
+@njit(cache=True, inline="always")
+def wrap(x, lo, L):
+    """Map x into [lo, lo + L) on a periodic axis (L > 0); unchanged if L == 0."""
+    if L > 0.0:
+        s = x - lo
+        s -= L * math.floor(s / L)
+        if s >= L:  # round-off of the floor above
+            s = 0.0 * L
+        return lo + s
+    return x
+
+
+@literal_dispatch(1)
+@njit(cache=True, parallel=True)
+def enforce_boundaries(periodic, prm, n, x, v, lo, wall_kind, wall_data, leaked):
+    """Wrap periodic axes; push particles closer than wall_gap back out with restitution/friction;
+    mark particles found behind a wall (d < 0) in ``leaked``.   (walls.py)"""
+    literally(periodic)
+    for i in prange(n):
+        if periodic:
+            x[i, 0] = wrap(x[i, 0], lo[0], prm.period_x)
+            x[i, 1] = wrap(x[i, 1], lo[1], prm.period_y)
+            x[i, 2] = wrap(x[i, 2], lo[2], prm.period_z)
+        hit = 0
+        for sweep in range(2):  # a second sweep settles corners where two walls push in turn
+            for q in range(wall_kind.shape[0]):
+                d, nx, ny, nz = signed_distance(wall_kind[q], wall_data[q], x[i, 0], x[i, 1], x[i, 2])
+                if d < 0.0 and sweep == 0:
+                    hit = 1
+                if d < prm.wall_gap:
+                    push = prm.wall_gap - d
+                    x[i, 0] += push * nx
+                    x[i, 1] += push * ny
+                    x[i, 2] += push * nz
+                    vn = v[i, 0] * nx + v[i, 1] * ny + v[i, 2] * nz
+                    if vn < 0.0:
+                        for c, nc in ((0, nx), (1, ny), (2, nz)):
+                            vt = v[i, c] - vn * nc
+                            v[i, c] = vt * (1.0 - prm.friction) - prm.restitution * vn * nc
+        leaked[i] = hit
+
+
+@njit(cache=True, parallel=True)
+def step_statistics(n, x, v, a, rho, rho0):
+    """(max |v|^2, max |a|^2, max |rho/rho0 - 1|, count of rows holding NaN/Inf) over owned rows."""
+    vmax2 = 0.0
+    amax2 = 0.0
+    dev = 0.0
+    bad = 0
+    for i in prange(n):
+        v2 = v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1] + v[i, 2] * v[i, 2]
+        a2 = a[i, 0] * a[i, 0] + a[i, 1] * a[i, 1] + a[i, 2] * a[i, 2]
+        r = abs(rho[i] / rho0 - 1.0)
+        s = v2 + a2 + r + x[i, 0] + x[i, 1] + x[i, 2]
+        if not math.isfinite(s):
+            bad += 1
+        else:
+            vmax2 = max(vmax2, v2)
+            amax2 = max(amax2, a2)
+            dev = max(dev, r)
+    return vmax2, amax2, dev, bad

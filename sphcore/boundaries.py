@@ -1,0 +1,160 @@
+"""Turn a scene's container, planes and obstacles into wall primitives for the drivers.
+
+Produces ``Walls``: ``kind`` (nw,) int32 codes (``WallKind``), ``data`` (nw, 16) float rows in the
+layout documented in ``sphcore.physics.walls``, the tables Phi(d) and G(d) of the run's kernel, and
+the axis-aligned bounds of the domain (which the global grid covers).
+
+A box container becomes six planes (the faces along periodic axes are dropped), a cylinder its
+lateral surface plus two cap planes, a sphere one spherical wall. Treating faces as separate planes
+makes corners see both walls' share of the kernel.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from sphcore.choices import Kernel, WallKind
+from sphcore.physics.kernels import dw_dr, kernel_constants, w
+from sphcore.scene import Scene
+
+
+def rotation_matrix(degrees) -> np.ndarray:
+    """R = Rz @ Ry @ Rx for rotations about x, then y, then z (degrees); local -> world."""
+    ax, ay, az = (math.radians(a) for a in degrees)
+    cx, sx, cy, sy, cz, sz = math.cos(ax), math.sin(ax), math.cos(ay), math.sin(ay), math.cos(az), math.sin(az)
+    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+@dataclass
+class Walls:
+    kind: np.ndarray        # (nw,) int32
+    data: np.ndarray        # (nw, 16) float
+    phi: np.ndarray         # (nt,) Phi(d) on d in [0, H]
+    g: np.ndarray           # (nt,) G(d) on d in [0, H]
+    lo: np.ndarray          # (3,) lower corner of the domain's bounding box
+    hi: np.ndarray          # (3,) upper corner
+    container_walls: int    # the first walls belong to the container
+
+
+def _row(point=(0, 0, 0), normal=(0, 0, 0), R=np.eye(3), radius=0.0, half=None):
+    row = np.zeros(16)
+    row[0:3] = point
+    row[3:6] = normal if half is None else half
+    row[6:15] = np.asarray(R).reshape(9)
+    row[15] = radius
+    return row
+
+
+def container_frame(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """(centre, R) of the container: local coordinates map to centre + R @ local."""
+    dom = scene.domain
+    return np.array(dom.center, dtype=float), rotation_matrix(dom.rotation)
+
+
+def build_walls(scene: Scene, kernel: Kernel, H: float, dtype, table_size: int = 256) -> Walls:
+    dom = scene.domain
+    c, R = container_frame(scene)
+    s = dom.scale
+    kinds, rows = [], []
+    corners = []
+    if dom.container == "box":
+        half = 0.5 * np.array(dom.size) * s
+        if scene.dim == 2:
+            half[2] = 0.0
+        for axis in range(scene.dim):
+            if dom.periodic[axis]:
+                continue
+            for sign in (-1.0, 1.0):
+                n_local = np.zeros(3)
+                n_local[axis] = -sign  # normal points inwards
+                p_local = np.zeros(3)
+                p_local[axis] = sign * half[axis]
+                kinds.append(WallKind.PLANE)
+                rows.append(_row(point=c + R @ p_local, normal=R @ n_local))
+        for corner in np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T:
+            corners.append(c + R @ (corner * half))
+    elif dom.container == "sphere":
+        r = dom.radius * s
+        kinds.append(WallKind.SPHERE_INSIDE)
+        rows.append(_row(point=c, radius=r))
+        ext = np.array([r, r, r if scene.dim == 3 else 0.0])
+        corners += [c - ext, c + ext]
+    elif dom.container == "cylinder":
+        r = 0.5 * dom.size[0] * s
+        half_h = 0.5 * dom.size[1] * s
+        kinds.append(WallKind.CYLINDER_INSIDE)
+        rows.append(_row(point=c, R=R, radius=r))
+        axis = R @ np.array([0.0, 1.0, 0.0])
+        for sign in (-1.0, 1.0):
+            kinds.append(WallKind.PLANE)
+            rows.append(_row(point=c + sign * half_h * axis, normal=-sign * axis))
+        for corner in np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T:
+            corners.append(c + R @ (corner * np.array([r, half_h, r])))
+    else:  # none: bounds given explicitly
+        corners += [np.array(dom.bounds_min, dtype=float), np.array(dom.bounds_max, dtype=float)]
+    n_container = len(kinds)
+    for pl in dom.planes:
+        nrm = np.array(pl.normal, dtype=float)
+        kinds.append(WallKind.PLANE)
+        rows.append(_row(point=pl.point, normal=nrm / np.linalg.norm(nrm)))
+    for ob in scene.obstacles:
+        centre = np.array(ob.center, dtype=float)
+        Rob = rotation_matrix(ob.rotation)
+        if ob.frame == "container":
+            centre = c + R @ (centre * s)
+            Rob = R @ Rob
+        if ob.shape == "sphere":
+            kinds.append(WallKind.SPHERE_OUTSIDE)
+            rows.append(_row(point=centre, radius=ob.radius))
+        else:
+            kinds.append(WallKind.BOX_OUTSIDE)
+            rows.append(_row(point=centre, R=Rob, half=0.5 * np.array(ob.size)))
+    corners = np.array(corners)
+    lo, hi = corners.min(axis=0), corners.max(axis=0)
+    if scene.dim == 2:
+        lo[2], hi[2] = 0.0, 0.0
+    phi, g = wall_tables(kernel, scene.dim, H, table_size)
+    return Walls(
+        kind=np.array(kinds, dtype=np.int32),
+        data=np.array(rows, dtype=dtype).reshape(len(rows), 16),
+        phi=phi.astype(dtype), g=g.astype(dtype), lo=lo, hi=hi, container_walls=n_container,
+    )
+
+
+def wall_tables(kernel: Kernel, dim: int, H: float, size: int = 256, quad: int = 400):
+    """Phi(d) = integral of W over the half-space at distance d, and G(d) = integral of dW/dr times
+    the normal component of the unit separation over it, for d in [0, H] (midpoint quadrature)."""
+    s_w, s_g, _ = kernel_constants(kernel, dim, H)
+    d = np.linspace(0.0, H, size)
+    # sample the slab d < z < H once on a fine midpoint grid; cumulative sums give every d
+    dz = H / quad
+    z = (np.arange(quad) + 0.5) * dz
+    t = (np.arange(quad) + 0.5) / quad  # fraction of the chord / disc radius
+    layer_w = np.zeros(quad)
+    layer_g = np.zeros(quad)
+    wv = np.vectorize(lambda r: w(int(kernel), r, H, s_w))
+    gv = np.vectorize(lambda r: dw_dr(int(kernel), r, H, s_g))
+    for k, zk in enumerate(z):
+        rmax = math.sqrt(max(H * H - zk * zk, 0.0))
+        if dim == 3:  # disc of radius rmax at height zk: integral 2 pi rho f(r) drho
+            rho_ = t * rmax
+            r = np.sqrt(zk * zk + rho_ * rho_)
+            jac = 2.0 * math.pi * rho_ * (rmax / quad)
+        else:  # chord of half-length rmax: integral f(r) dy over [-rmax, rmax]
+            y = t * rmax
+            r = np.sqrt(zk * zk + y * y)
+            jac = 2.0 * (rmax / quad) * np.ones(quad)
+        layer_w[k] = np.sum(wv(r) * jac) * dz
+        rr = np.where(r > 0, r, 1.0)
+        layer_g[k] = np.sum(gv(r) * (zk / rr) * jac) * dz
+    cum_w = np.concatenate([np.cumsum(layer_w[::-1])[::-1], [0.0]])
+    cum_g = np.concatenate([np.cumsum(layer_g[::-1])[::-1], [0.0]])
+    edges = np.concatenate([z - 0.5 * dz, [H]])
+    phi = np.interp(d, edges, cum_w)
+    g = np.interp(d, edges, cum_g)
+    return phi, g

@@ -1,0 +1,54 @@
+"""Physical parameters as a flat NamedTuple of scalars, cast to the run's precision.
+
+numba passes NamedTuples to CPU drivers (and to CUDA kernels) by value; every float field is cast to
+the run's dtype so that float32 runs compute in float32 where the arithmetic allows it. Vectors are
+spelled out per component: numba's parallel loops do not accept tuples nested in a NamedTuple.
+"""
+from typing import NamedTuple
+
+import numpy as np
+
+
+class Params(NamedTuple):
+    H: float            # support radius (m)
+    h: float            # smoothing length H/2 (m), used by the viscosity regularisation
+    s_w: float          # density-kernel constant (kernels.kernel_constants)
+    s_g: float          # gradient-kernel constant
+    s_l: float          # viscosity-Laplacian constant
+    w0: float           # W(0): the self contribution to density per unit mass
+    rho0: float         # rest density (kg/m^3)
+    c0: float           # speed of sound (m/s)
+    clamp_negative: bool
+    alpha: float        # Monaghan artificial viscosity coefficient
+    mu: float           # dynamic viscosity rho0 * nu (Pa s)
+    gravity_x: float    # gravitational acceleration (m/s^2)
+    gravity_y: float
+    gravity_z: float
+    external_x: float   # constant external acceleration (m/s^2)
+    external_y: float
+    external_z: float
+    period_x: float     # period length along x, 0 if x is not periodic (m)
+    period_y: float
+    period_z: float
+    xsph_eps: float
+    sigma: float        # surface tension coefficient (N/m)
+    st_threshold: float # colour-gradient threshold (1/m)
+    vorticity_eps: float
+    restitution: float
+    friction: float
+    wall_gap: float     # closest approach to a wall before collision handling (m)
+
+
+def make_params(dtype, **values) -> Params:
+    """Build Params with every float cast to ``dtype``; vector values (gravity=(x, y, z)) are split
+    into their ``_x``, ``_y``, ``_z`` fields."""
+    cast = np.dtype(dtype).type
+    flat = {}
+    for name, v in values.items():
+        if isinstance(v, (tuple, list, np.ndarray)):
+            for axis, e in zip("xyz", v):
+                flat[f"{name}_{axis}"] = e
+        else:
+            flat[name] = v
+    return Params(**{name: flat[name] if isinstance(flat[name], bool) else cast(flat[name])
+                     for name in Params._fields})

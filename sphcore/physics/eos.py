@@ -1,0 +1,27 @@
+"""Equations of state for weakly compressible SPH.
+
+* linear (the seeds; Desbrun & Gascuel 1996, Müller 2003 eq. 12 with rest density):
+  p = k (rho - rho0), k = c0^2
+* Tait (Batchelor 1967, used for SPH by Monaghan 1994 "Simulating free surface flows with SPH"):
+  p = B ((rho/rho0)^gamma - 1), gamma = 7, B = rho0 c0^2 / gamma
+
+With ``clamp_negative`` the pressure is floored at zero: free-surface particles with a partial
+neighbourhood then do not attract each other (the usual remedy for tensile clumping at a free
+surface); scenes without a free surface (Taylor-Green) keep negative pressures.
+"""
+from numba import njit
+
+
+@njit(cache=True, inline="always")
+def pressure(eos, rho, rho0, c0, clamp_negative):
+    """Pressure p(rho) in Pa for EOS code ``eos`` (sphcore.choices.EOS)."""
+    if eos == 0:  # EOS.LINEAR
+        p = c0 * c0 * (rho - rho0)
+    else:  # EOS.TAIT with gamma = 7, unrolled power
+        ratio = rho / rho0
+        r2 = ratio * ratio
+        r4 = r2 * r2
+        p = rho0 * c0 * c0 / 7.0 * (r4 * r2 * ratio - 1.0)
+    if clamp_negative and p < 0.0:
+        p = 0.0 * p
+    return p

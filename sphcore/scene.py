@@ -1,0 +1,445 @@
+"""Scenes: TOML files parsed into frozen, validated dataclasses.
+
+Every key of every section is declared here once, with its type, default, allowed range or choices
+and a one-line help. Loading checks unknown keys, types, ranges and combinations, and raises
+``SceneError`` naming the key, the value and what is allowed. ``--set section.key=value`` overrides
+are applied to the raw TOML data before validation, so they pass through the same checks.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from sphcore.choices import EOSES, INTEGRATORS, KERNELS, VISCOSITIES
+
+
+class SceneError(ValueError):
+    """A scene (or an override) is invalid; the message names the key, the value and what is allowed."""
+
+
+def spec(default, help: str, *, range: tuple | None = None, choices=None, min_exclusive: bool = False,
+         length: tuple | None = None):
+    """Declare a scene key: default, help text and constraints (checked by ``_check_value``)."""
+    meta = {"help": help, "range": range, "choices": choices, "min_exclusive": min_exclusive, "length": length}
+    if isinstance(default, (list, dict)):
+        return field(default_factory=lambda: default, metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+VEC = (2, 3)  # vectors may have 2 (2D scenes) or 3 components
+
+
+@dataclass(frozen=True)
+class SceneInfo:
+    name: str = spec("scene", "short name, used in logs and output metadata")
+    description: str = spec("", "one-line description")
+    dim: int = spec(3, "spatial dimension", choices=(2, 3))
+
+
+@dataclass(frozen=True)
+class Particles:
+    spacing: float = spec(0.02, "initial lattice spacing dx in m: the one resolution key", range=(0.0, math.inf),
+                          min_exclusive=True)
+    max_particles: int = spec(20_000_000, "refuse scenes that would create more particles than this",
+                              range=(1, 10**10))
+
+
+@dataclass(frozen=True)
+class Block:
+    shape: str = spec("box", "shape of the fluid region", choices=("box", "sphere"))
+    min: tuple = spec((0.0, 0.0, 0.0), "box: lower corner (m)", length=VEC)
+    max: tuple = spec((0.0, 0.0, 0.0), "box: upper corner (m)", length=VEC)
+    center: tuple = spec((0.0, 0.0, 0.0), "sphere: centre (m)", length=VEC)
+    radius: float = spec(0.0, "sphere: radius (m)", range=(0.0, math.inf))
+    velocity: tuple = spec((0.0, 0.0, 0.0), "initial velocity (m/s)", length=VEC)
+    frame: str = spec("world", "coordinates of min/max/center: world or the container's local frame",
+                      choices=("world", "container"))
+
+
+@dataclass(frozen=True)
+class Fluid:
+    rest_density: float = spec(1000.0, "rest density rho0 (kg/m^3)", range=(0.0, math.inf), min_exclusive=True)
+    initial_flow: str = spec("none", "analytic initial velocity field added to the blocks' velocity",
+                             choices=("none", "taylor_green"))
+    flow_speed: float = spec(1.0, "taylor_green: velocity amplitude U (m/s)", range=(0.0, math.inf))
+    blocks: list = spec([], "regions filled with fluid on a lattice of the given spacing ([[fluid.blocks]])")
+
+
+@dataclass(frozen=True)
+class SPH:
+    kernel: str = spec("wendland_c2", "smoothing kernel family", choices=tuple(KERNELS))
+    support: float = spec(2.3, "support radius H in units of the spacing (about 50 neighbours in 3D at 2.3)",
+                          range=(1.0, 4.0))
+    eos: str = spec("tait", "equation of state", choices=tuple(EOSES))
+    sound_speed: float = spec(20.0, "numerical speed of sound c0 (m/s); >= 10x the largest flow speed",
+                              range=(0.0, math.inf), min_exclusive=True)
+    clamp_negative_pressure: bool = spec(True, "floor pressure at 0 (free surfaces); false for closed flows")
+    viscosity: str = spec("artificial", "viscosity model", choices=tuple(VISCOSITIES))
+    alpha: float = spec(0.02, "artificial viscosity coefficient (viscosity = artificial)", range=(0.0, 10.0))
+    nu: float = spec(1.0e-6, "kinematic viscosity (m^2/s) (viscosity = muller or morris)", range=(0.0, 1.0e3))
+
+
+@dataclass(frozen=True)
+class Terms:
+    xsph: float = spec(0.0, "XSPH velocity smoothing eps (0 = off; typical 0.1-0.5)", range=(0.0, 1.0))
+    surface_tension: float = spec(0.0, "colour-field surface tension sigma in N/m (0 = off)", range=(0.0, 1.0e3))
+    surface_threshold: float = spec(0.1, "colour-gradient threshold as a fraction of 1/spacing", range=(0.0, 10.0))
+    vorticity_confinement: float = spec(0.0, "vorticity confinement eps in m/s (0 = off)", range=(0.0, 1.0e3))
+
+
+@dataclass(frozen=True)
+class Forces:
+    gravity: tuple = spec((0.0, -9.81, 0.0), "gravitational acceleration (m/s^2)", length=VEC)
+    external: tuple = spec((0.0, 0.0, 0.0), "constant external acceleration, any direction (m/s^2)", length=VEC)
+
+
+@dataclass(frozen=True)
+class Time:
+    integrator: str = spec("symplectic_euler", "time integrator", choices=tuple(INTEGRATORS))
+    mode: str = spec("adaptive", "time step: fixed dt, or adaptive from CFL limits", choices=("fixed", "adaptive"))
+    dt: float = spec(1.0e-4, "fixed: the time step; adaptive: the largest allowed step (s)",
+                     range=(0.0, 1.0), min_exclusive=True)
+    cfl: float = spec(0.25, "CFL number for the acoustic, force and viscous limits", range=(0.0, 2.0),
+                      min_exclusive=True)
+    steps: int = spec(200, "steps to run when neither --steps nor --until is given", range=(0, 10**9))
+
+
+@dataclass(frozen=True)
+class Plane:
+    point: tuple = spec((0.0, 0.0, 0.0), "a point on the plane (m)", length=VEC)
+    normal: tuple = spec((0.0, 1.0, 0.0), "normal pointing into the fluid", length=VEC)
+
+
+@dataclass(frozen=True)
+class Domain:
+    container: str = spec("box", "container shape (none: only planes / periodic axes bound the fluid)",
+                          choices=("box", "sphere", "cylinder", "none"))
+    center: tuple = spec((0.0, 0.0, 0.0), "container centre (m)", length=VEC)
+    size: tuple = spec((1.0, 1.0, 1.0), "box: edge lengths; cylinder: (diameter, height, -) (m)", length=VEC)
+    radius: float = spec(0.5, "sphere: radius (m)", range=(0.0, math.inf), min_exclusive=True)
+    rotation: tuple = spec((0.0, 0.0, 0.0), "container rotation about x, y, z (degrees, applied x then y then z)",
+                           length=VEC)
+    scale: float = spec(1.0, "uniform scale of the container about its centre", range=(0.0, math.inf),
+                        min_exclusive=True)
+    periodic: tuple = spec((False, False, False), "periodic axes (box container, no rotation)", length=VEC)
+    bounds_min: tuple = spec((0.0, 0.0, 0.0), "container = none: lower corner of the simulated region (m)",
+                             length=VEC)
+    bounds_max: tuple = spec((0.0, 0.0, 0.0), "container = none: upper corner of the simulated region (m)",
+                             length=VEC)
+    planes: list = spec([], "extra planar walls ([[domain.planes]])")
+
+
+@dataclass(frozen=True)
+class Obstacle:
+    shape: str = spec("sphere", "obstacle shape", choices=("sphere", "box"))
+    center: tuple = spec((0.0, 0.0, 0.0), "centre (m)", length=VEC)
+    radius: float = spec(0.1, "sphere: radius (m)", range=(0.0, math.inf), min_exclusive=True)
+    size: tuple = spec((0.1, 0.1, 0.1), "box: edge lengths (m)", length=VEC)
+    rotation: tuple = spec((0.0, 0.0, 0.0), "box: rotation about x, y, z (degrees)", length=VEC)
+    frame: str = spec("world", "coordinates of center: world or the container's local frame",
+                      choices=("world", "container"))
+
+
+@dataclass(frozen=True)
+class Boundary:
+    restitution: float = spec(0.0, "normal velocity kept (reversed) on wall contact", range=(0.0, 1.0))
+    friction: float = spec(0.0, "fraction of tangential velocity removed on wall contact", range=(0.0, 1.0))
+    gap: float = spec(0.25, "closest approach to a wall, in units of the spacing", range=(0.0, 0.5))
+
+
+@dataclass(frozen=True)
+class Run:
+    precision: str = spec("f64", "floating point precision (--precision overrides)", choices=("f32", "f64"))
+    log_every: int = spec(0, "steps between progress log lines when not on a terminal (0 = about 20 lines)",
+                          range=(0, 10**9))
+    max_density_ratio: float = spec(3.0, "stop with a diagnostic if some rho/rho0 exceeds this",
+                                    range=(1.0, math.inf), min_exclusive=True)
+
+
+SECTIONS: dict[str, type] = {
+    "scene": SceneInfo, "particles": Particles, "fluid": Fluid, "sph": SPH, "terms": Terms, "forces": Forces,
+    "time": Time, "domain": Domain, "obstacles": Obstacle, "boundary": Boundary, "run": Run,
+}
+LIST_ITEMS: dict[str, type] = {"fluid.blocks": Block, "domain.planes": Plane, "obstacles": Obstacle}
+
+
+@dataclass(frozen=True)
+class Scene:
+    scene: SceneInfo
+    particles: Particles
+    fluid: Fluid
+    sph: SPH
+    terms: Terms
+    forces: Forces
+    time: Time
+    domain: Domain
+    obstacles: tuple
+    boundary: Boundary
+    run: Run
+    source: str = ""
+
+    @property
+    def dim(self) -> int:
+        return self.scene.dim
+
+    def to_dict(self) -> dict:
+        """Plain dict (TOML-serialisable) of every resolved key."""
+        out = {}
+        for f in dataclasses.fields(self):
+            if f.name == "source":
+                continue
+            val = getattr(self, f.name)
+            out[f.name] = [_plain(o) for o in val] if isinstance(val, tuple) else _plain(val)
+        return out
+
+
+def _plain(obj):
+    if dataclasses.is_dataclass(obj):
+        return {f.name: _plain(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    if isinstance(obj, (tuple, list)):
+        return [_plain(o) for o in obj]
+    return obj
+
+
+def _type_name(t) -> str:
+    return {"float": "a number", "int": "an integer", "bool": "true or false", "str": "a string",
+            "tuple": "an array", "list": "an array of tables"}.get(t, t)
+
+
+def _check_value(key: str, f: dataclasses.Field, value: Any):
+    """Type- and range-check one value; return it normalised (ints to floats, lists to tuples)."""
+    t = f.type if isinstance(f.type, str) else f.type.__name__
+    meta = f.metadata
+    if t == "float":
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise SceneError(f"{key} = {value!r}: expected {_type_name(t)}")
+        value = float(value)
+        if not math.isfinite(value):
+            raise SceneError(f"{key} = {value!r}: expected a finite number")
+    elif t == "int":
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise SceneError(f"{key} = {value!r}: expected {_type_name(t)}")
+    elif t == "bool":
+        if not isinstance(value, bool):
+            raise SceneError(f"{key} = {value!r}: expected {_type_name(t)}")
+    elif t == "str":
+        if not isinstance(value, str):
+            raise SceneError(f"{key} = {value!r}: expected {_type_name(t)}")
+    elif t == "tuple":
+        if not isinstance(value, (list, tuple)):
+            raise SceneError(f"{key} = {value!r}: expected {_type_name(t)}")
+        length = meta.get("length")
+        if length and len(value) not in length:
+            raise SceneError(f"{key} = {value!r}: expected {' or '.join(map(str, length))} components")
+        elem_bool = isinstance(f.default, tuple) and f.default and isinstance(f.default[0], bool)
+        out = []
+        for e in value:
+            if elem_bool:
+                if not isinstance(e, bool):
+                    raise SceneError(f"{key} = {value!r}: expected an array of true/false")
+                out.append(e)
+            else:
+                if isinstance(e, bool) or not isinstance(e, (int, float)) or not math.isfinite(e):
+                    raise SceneError(f"{key} = {value!r}: expected an array of finite numbers")
+                out.append(float(e))
+        return tuple(out)
+    choices = meta.get("choices")
+    if choices is not None and value not in choices:
+        raise SceneError(f"{key} = {value!r}: allowed values are {', '.join(repr(c) for c in choices)}")
+    rng = meta.get("range")
+    if rng is not None:
+        lo, hi = rng
+        if value > hi or value < lo or (meta.get("min_exclusive") and value == lo):
+            left = "(" if meta.get("min_exclusive") else "["
+            raise SceneError(f"{key} = {value!r}: allowed range is {left}{lo:g}, {hi:g}]")
+    return value
+
+
+def _build(cls, data: dict, path: str):
+    if not isinstance(data, dict):
+        raise SceneError(f"{path}: expected a table, got {data!r}")
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = [k for k in data if k not in fields]
+    if unknown:
+        raise SceneError(f"unknown key '{path}.{unknown[0]}' (allowed in [{path}]: {', '.join(fields)})")
+    values = {}
+    for name, f in fields.items():
+        key = f"{path}.{name}"
+        if name not in data:
+            continue
+        value = data[name]
+        item_cls = LIST_ITEMS.get(key)
+        if item_cls is not None:
+            if not isinstance(value, list):
+                raise SceneError(f"{key} = {value!r}: expected an array of tables ([[{key}]])")
+            values[name] = tuple(_build(item_cls, item, f"{key}[{i}]") for i, item in enumerate(value))
+        else:
+            values[name] = _check_value(key, f, value)
+    return cls(**values)
+
+
+def parse_override(text: str) -> tuple[list, Any]:
+    """Split ``section.key=value`` (or ``fluid.blocks[0].velocity=[1,0,0]``) into a path and a value.
+
+    The value is parsed as TOML; a bare word that is not valid TOML is taken as a string, so
+    ``--set sph.kernel=cubic_spline`` works without quotes.
+    """
+    if "=" not in text:
+        raise SceneError(f"--set {text!r}: expected section.key=value")
+    lhs, rhs = text.split("=", 1)
+    path = []
+    for part in lhs.strip().split("."):
+        if not part:
+            raise SceneError(f"--set {text!r}: empty key segment")
+        while "[" in part:
+            name, rest = part.split("[", 1)
+            index, part = rest.split("]", 1)
+            if name:
+                path.append(name)
+            if not index.isdigit():
+                raise SceneError(f"--set {text!r}: index [{index}] must be a non-negative integer")
+            path.append(int(index))
+        if part:
+            path.append(part)
+    try:
+        value = tomllib.loads(f"v = {rhs.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = rhs.strip()
+    return path, value
+
+
+def apply_override(data: dict, path: list, value, text: str):
+    if len(path) < 2 or not isinstance(path[0], str):
+        raise SceneError(f"--set {text!r}: expected section.key=value")
+    if path[0] not in SECTIONS:
+        raise SceneError(f"--set {text!r}: unknown section '{path[0]}' (sections: {', '.join(SECTIONS)})")
+    node = data
+    for seg in path[:-1]:
+        if isinstance(seg, int):
+            if not isinstance(node, list) or seg >= len(node):
+                raise SceneError(f"--set {text!r}: index {seg} is out of range")
+            node = node[seg]
+        else:
+            node = node.setdefault(seg, {})
+        if not isinstance(node, (dict, list)):
+            raise SceneError(f"--set {text!r}: '{seg}' is not a table")
+    last = path[-1]
+    if isinstance(last, int) or not isinstance(node, dict):
+        raise SceneError(f"--set {text!r}: expected section.key=value")
+    node[last] = value
+
+
+def load_scene(path: str | Path, overrides: list[str] = ()) -> Scene:
+    """Read, override and validate a scene file."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as e:
+        raise SceneError(f"cannot read scene file {str(path)!r}: {e.strerror}") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise SceneError(f"{path}: not valid TOML: {e}") from None
+    for text_ in overrides:
+        p, v = parse_override(text_)
+        apply_override(data, p, v, text_)
+    return scene_from_dict(data, source=str(path))
+
+
+def scene_from_dict(data: dict, source: str = "") -> Scene:
+    unknown = [k for k in data if k not in SECTIONS]
+    if unknown:
+        raise SceneError(f"unknown section [{unknown[0]}] (sections: {', '.join(SECTIONS)})")
+    parts = {}
+    for name, cls in SECTIONS.items():
+        if name == "obstacles":
+            raw = data.get("obstacles", [])
+            if not isinstance(raw, list):
+                raise SceneError(f"obstacles = {raw!r}: expected an array of tables ([[obstacles]])")
+            parts[name] = tuple(_build(Obstacle, o, f"obstacles[{i}]") for i, o in enumerate(raw))
+        else:
+            parts[name] = _build(cls, data.get(name, {}), name)
+    scene = Scene(**parts, source=source)
+    return _check_combinations(_pad_vectors(scene))
+
+
+def _pad(vec: tuple, fill=0.0) -> tuple:
+    return tuple(vec) + (fill,) * (3 - len(vec))
+
+
+def _pad_vectors(scene: Scene) -> Scene:
+    """Give every 2-component vector a z component (0 / false); in 3D scenes reject 2-vectors."""
+    def fix(obj, path):
+        changes = {}
+        for f in dataclasses.fields(obj):
+            val = getattr(obj, f.name)
+            if f.metadata.get("length") == VEC and isinstance(val, tuple) and len(val) == 2:
+                if scene.dim == 3:
+                    raise SceneError(f"{path}.{f.name} = {list(val)!r}: a 3D scene needs 3 components")
+                changes[f.name] = _pad(val, False if isinstance(val[0], bool) else 0.0)
+            elif isinstance(val, tuple) and val and dataclasses.is_dataclass(val[0]):
+                changes[f.name] = tuple(fix(o, f"{path}.{f.name}[{i}]") for i, o in enumerate(val))
+        return dataclasses.replace(obj, **changes) if changes else obj
+
+    new = {}
+    for name in SECTIONS:
+        val = getattr(scene, name)
+        if isinstance(val, tuple):
+            new[name] = tuple(fix(o, f"{name}[{i}]") for i, o in enumerate(val))
+        else:
+            new[name] = fix(val, name)
+    return dataclasses.replace(scene, **new)
+
+
+def _check_combinations(s: Scene) -> Scene:
+    """Cross-key rules: each error names the keys involved and what would be allowed."""
+    dom = s.domain
+    if s.dim == 2:
+        if dom.container == "cylinder":
+            raise SceneError("domain.container = 'cylinder': not available in 2D scenes (use box or sphere)")
+        if dom.rotation[0] or dom.rotation[1]:
+            raise SceneError(f"domain.rotation = {list(dom.rotation)!r}: 2D scenes rotate about z only")
+        if dom.periodic[2]:
+            raise SceneError("domain.periodic: a 2D scene cannot be periodic along z")
+        for name in ("gravity", "external"):
+            if getattr(s.forces, name)[2] != 0.0:
+                raise SceneError(f"forces.{name} = {list(getattr(s.forces, name))!r}: z must be 0 in 2D")
+    if any(dom.periodic):
+        if dom.container not in ("box", "none"):
+            raise SceneError(f"domain.periodic = {list(dom.periodic)!r}: periodic axes need container = 'box' "
+                             f"or 'none', not {dom.container!r}")
+        if any(dom.rotation) or dom.scale != 1.0:
+            raise SceneError(f"domain.periodic = {list(dom.periodic)!r}: a periodic container cannot be rotated or "
+                             "scaled (domain.rotation = [0, 0, 0], domain.scale = 1)")
+    if dom.container == "none":
+        lo, hi = dom.bounds_min, dom.bounds_max
+        if any(hi[d] <= lo[d] for d in range(s.dim)):
+            raise SceneError(f"domain.bounds_max = {list(hi)!r}: must exceed domain.bounds_min = {list(lo)!r} on "
+                             "every axis when domain.container = 'none'")
+    if dom.container == "box" and any(dom.size[d] <= 0 for d in range(s.dim)):
+        raise SceneError(f"domain.size = {list(dom.size)!r}: box edge lengths must be positive")
+    if dom.container == "cylinder" and (dom.size[0] <= 0 or dom.size[1] <= 0):
+        raise SceneError(f"domain.size = {list(dom.size)!r}: cylinder needs (diameter, height) > 0")
+    if not s.fluid.blocks:
+        raise SceneError("fluid.blocks: a scene needs at least one [[fluid.blocks]] table")
+    for i, b in enumerate(s.fluid.blocks):
+        key = f"fluid.blocks[{i}]"
+        if b.shape == "box" and any(b.max[d] <= b.min[d] for d in range(s.dim)):
+            raise SceneError(f"{key}.max = {list(b.max)!r}: must exceed {key}.min = {list(b.min)!r} on every axis")
+        if b.shape == "sphere" and b.radius <= 0:
+            raise SceneError(f"{key}.radius = {b.radius!r}: a sphere block needs a positive radius")
+    for i, pl in enumerate(s.domain.planes):
+        if math.hypot(*pl.normal) == 0:
+            raise SceneError(f"domain.planes[{i}].normal = {list(pl.normal)!r}: must be non-zero")
+    if s.sph.viscosity in ("muller", "morris") and s.sph.nu <= 0:
+        raise SceneError(f"sph.nu = {s.sph.nu!r}: viscosity = {s.sph.viscosity!r} needs nu > 0")
+    if s.fluid.initial_flow == "taylor_green":
+        if s.dim != 2 or not (dom.periodic[0] and dom.periodic[1]):
+            raise SceneError("fluid.initial_flow = 'taylor_green': needs dim = 2 and domain.periodic = [true, true]")
+    if s.time.mode == "fixed" and s.time.integrator == "leapfrog" and s.time.dt <= 0:
+        raise SceneError(f"time.dt = {s.time.dt!r}: must be positive")
+    return s

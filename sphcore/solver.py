@@ -1,0 +1,199 @@
+"""The simulation: set-up from a scene, and the one place that orders a step.
+
+``Simulation(scene, precision)`` builds the particles, walls, grid and parameters; ``step()`` runs
+one time step as a flat list of timed stages (what each reads and writes is noted beside it);
+optional terms appear in the list only when the scene enables them.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from sphcore import grid as grid_mod
+from sphcore.backends import cpu
+from sphcore.boundaries import build_walls
+from sphcore.choices import EOSES, INTEGRATORS, KERNELS, VISCOSITIES, Integrator, Viscosity
+from sphcore.initial import generate_particles, lattice_mass
+from sphcore.params import make_params
+from sphcore.physics.kernels import kernel_constants, w
+from sphcore.scene import Scene
+from sphcore.state import ParticleState
+from sphcore.timers import StageTimers
+from sphcore.timestep import LIMITS, choose_dt
+
+DTYPES = {"f32": np.float32, "f64": np.float64}
+
+
+class SimulationError(RuntimeError):
+    """The run became unphysical; the message names the step, the cause and the particles."""
+
+
+class Simulation:
+    def __init__(self, scene: Scene, precision: str | None = None):
+        self.scene = scene
+        self.precision = precision or scene.run.precision
+        if self.precision not in DTYPES:
+            raise ValueError(f"precision must be one of {', '.join(DTYPES)}, got {self.precision!r}")
+        dtype = DTYPES[self.precision]
+        self.dtype = np.dtype(dtype)
+        sph = scene.sph
+        dx = scene.particles.spacing
+        self.dx = dx
+        self.H = sph.support * dx
+        self.h = 0.5 * self.H
+        self.kernel = KERNELS[sph.kernel]
+        self.eos = EOSES[sph.eos]
+        self.viscosity = VISCOSITIES[sph.viscosity]
+        self.integrator = INTEGRATORS[scene.time.integrator]
+        s_w, s_g, s_l = kernel_constants(self.kernel, scene.dim, self.H)
+
+        self.walls = build_walls(scene, self.kernel, self.H, dtype)
+        ids, x, v = generate_particles(scene, self.walls)
+        rho0 = scene.fluid.rest_density
+        mass = lattice_mass(self.kernel, scene.dim, dx, self.H, s_w, rho0)
+        self.state = ParticleState.create(ids, x, v, np.full(len(ids), mass), dtype)
+        self.n_particles = len(ids)
+
+        periodic = tuple(bool(p) for p in scene.domain.periodic)
+        lo, hi = self.walls.lo.copy(), self.walls.hi.copy()
+        for d in range(3):
+            if not periodic[d] and d < scene.dim:  # one cell of margin beyond the walls
+                lo[d] -= self.H
+                hi[d] += self.H
+        self.grid_lo = lo
+        self.grid = grid_mod.Grid(lo, hi, self.H, periodic, dtype)
+        self.periodic = int(self.grid.periodic)
+        nu = sph.nu if self.viscosity in (Viscosity.MULLER, Viscosity.MORRIS) else 0.0
+        self.nu = nu
+        self.prm = make_params(
+            dtype, H=self.H, h=self.h, s_w=s_w, s_g=s_g, s_l=s_l, w0=w(int(self.kernel), 0.0, self.H, s_w),
+            rho0=rho0, c0=sph.sound_speed, clamp_negative=bool(sph.clamp_negative_pressure), alpha=sph.alpha,
+            mu=rho0 * nu, gravity=scene.forces.gravity, external=scene.forces.external,
+            period=tuple(self.grid.period), xsph_eps=scene.terms.xsph, sigma=scene.terms.surface_tension,
+            st_threshold=scene.terms.surface_threshold / dx, vorticity_eps=scene.terms.vorticity_confinement,
+            restitution=scene.boundary.restitution, friction=scene.boundary.friction,
+            wall_gap=scene.boundary.gap * dx,
+        )
+        self.use_xsph = scene.terms.xsph > 0.0
+        self.use_surface_tension = scene.terms.surface_tension > 0.0
+        self.use_vorticity = scene.terms.vorticity_confinement > 0.0
+        self._xsph_dv = np.zeros((self.n_particles if self.use_xsph else 0, 3), dtype=dtype)
+        self._omega = np.zeros((self.n_particles if self.use_vorticity else 0, 3), dtype=dtype)
+        self._leaked = np.zeros(self.n_particles, dtype=np.int8)
+        self._lo = self.grid_lo.astype(dtype)
+
+        self.t = 0.0
+        self.step_index = 0
+        self.dt_prev = 0.0  # leapfrog: the previous step, for the combined kick
+        self.dt = 0.0
+        self.leaks = 0
+        self.max_neighbours = 0
+        self.mean_neighbours = 0.0
+        self.max_density_deviation = 0.0
+        self.limit_counts = {name: 0 for name in LIMITS}
+        self.timers = StageTimers()
+
+    # -- stages --------------------------------------------------------------------------------
+    def _neighbours(self):
+        s = self.state
+        self.max_neighbours = max(self.max_neighbours, self.grid.bin(s))  # x -> (cell, id) order, lists
+
+    def _density(self):
+        s, w_ = self.state, self.walls
+        cpu.compute_density(int(self.kernel), int(self.eos), self.periodic, self.prm, s.n_owned, s.x, s.m,
+                            self.grid.nbr, self.grid.counts, w_.kind, w_.data, w_.phi, s.rho, s.p)
+
+    def _forces(self):
+        s, w_, g = self.state, self.walls, self.grid
+        cpu.compute_acceleration(int(self.kernel), int(self.viscosity), self.periodic, self.prm, s.n_owned, s.x,
+                                 s.v, s.m, s.rho, s.p, g.nbr, g.counts, w_.kind, w_.data, w_.g, s.a)
+
+    def step(self, dt_cap: float | None = None):
+        """Advance one time step; ``dt_cap`` shortens the last step of an --until run."""
+        s, g, prm, k, per, t = self.state, self.grid, self.prm, int(self.kernel), self.periodic, self.timers
+        with t("grid"):
+            self._neighbours()                                     # x                -> order, neighbour lists
+        with t("density"):
+            self._density()                                        # x, m             -> rho, p
+        with t("forces"):
+            self._forces()                                         # x, v, rho, p     -> a
+        if self.use_surface_tension:
+            with t("surface_tension"):                             # x, m, rho        -> a (+=)
+                cpu.add_surface_tension(k, per, prm, s.n_owned, s.x, s.m, s.rho, g.nbr, g.counts, s.a)
+        if self.use_vorticity:
+            with t("vorticity"):                                   # x, v, rho        -> omega -> a (+=)
+                cpu.compute_vorticity(k, per, prm, s.n_owned, s.x, s.v, s.m, s.rho, g.nbr, g.counts, self._omega)
+                cpu.add_vorticity_confinement(k, per, prm, s.n_owned, s.x, s.m, s.rho, self._omega, g.nbr,
+                                              g.counts, s.a)
+        if self.use_xsph:
+            with t("xsph"):                                        # x, v, rho        -> xsph_dv
+                cpu.compute_xsph(k, per, prm, s.n_owned, s.x, s.v, s.m, s.rho, g.nbr, g.counts, self._xsph_dv)
+        with t("timestep"):
+            dt = self._choose_dt(dt_cap)                           # v, a, rho        -> dt (+ health check)
+        with t("integrate"):                                       # a                -> v, x; walls, periodic
+            cpu.integrate(int(self.integrator), int(self.use_xsph), s.n_owned, s.x, s.v, s.a, self._xsph_dv,
+                          self.dtype.type(dt), self.dtype.type(self.dt_prev))
+            cpu.enforce_boundaries(per, prm, s.n_owned, s.x, s.v, self._lo, self.walls.kind, self.walls.data,
+                                   self._leaked)
+            self.leaks += int(self._leaked[: s.n_owned].sum())
+        self.dt_prev = dt
+        self.dt = dt
+        self.t += dt
+        self.step_index += 1
+        return dt
+
+    def _choose_dt(self, dt_cap):
+        s = self.state
+        vmax2, amax2, dev, bad = cpu.step_statistics(s.n_owned, s.x, s.v, s.a, s.rho, self.prm.rho0)
+        if bad:
+            self._fail("NaN or Inf in position, velocity, acceleration or density")
+        self.max_density_deviation = max(self.max_density_deviation, float(dev))
+        if 1.0 + dev > self.scene.run.max_density_ratio:
+            self._fail(f"density ratio rho/rho0 reached {1.0 + dev:.3g} (run.max_density_ratio = "
+                       f"{self.scene.run.max_density_ratio:g}): the time step or the speed of sound is too "
+                       "small for this flow", density=True)
+        tm = self.scene.time
+        dt, limit = choose_dt(tm.mode, tm.dt, tm.cfl, self.h, self.scene.sph.sound_speed, math.sqrt(vmax2),
+                              math.sqrt(amax2), self.nu)
+        if dt_cap is not None and dt_cap < dt:
+            dt, limit = dt_cap, "until"
+        self.limit_counts[limit] += 1
+        self.last_limit = limit
+        return dt
+
+    def _fail(self, cause: str, density: bool = False):
+        s = self.state
+        n = s.n_owned
+        if density:
+            rows = np.nonzero(np.abs(s.rho[:n] / self.prm.rho0 - 1.0) + 1.0 > self.scene.run.max_density_ratio)[0]
+        else:
+            finite = np.isfinite(s.x[:n]).all(1) & np.isfinite(s.v[:n]).all(1) & np.isfinite(s.a[:n]).all(1)
+            rows = np.nonzero(~(finite & np.isfinite(s.rho[:n])))[0]
+        ids = ", ".join(str(i) for i in sorted(s.id[rows][:10]))
+        more = f" and {len(rows) - 10} more" if len(rows) > 10 else ""
+        raise SimulationError(f"step {self.step_index} (t = {self.t:.6g} s): {cause}; particles {ids}{more}")
+
+    # -- outputs ---------------------------------------------------------------------------------
+    def refresh(self):
+        """Recompute neighbours, density and pressure (and a) for the current positions, so that
+        outputs are consistent; for leapfrog returns velocities synchronised to the full step."""
+        self._neighbours()
+        self._density()
+        self._forces()
+        s = self.state
+        if self.integrator == Integrator.LEAPFROG:
+            return s.v + 0.5 * self.dt_prev * s.a
+        return s.v
+
+    def final_arrays(self) -> dict:
+        """id, x, v, rho of all particles sorted by id (the final.npz contract)."""
+        v = self.refresh()
+        s = self.state
+        order = np.argsort(s.id[: s.n_owned], kind="stable")
+        return {"id": s.id[order], "x": s.x[order], "v": v[order], "rho": s.rho[order]}
+
+    def kinetic_energy(self) -> float:
+        s = self.state
+        n = s.n_owned
+        return float(0.5 * np.sum(s.m[:n].astype(np.float64) * np.einsum("ij,ij->i", s.v[:n], s.v[:n])))
