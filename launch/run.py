@@ -132,7 +132,7 @@ def make_summary(sim: Simulation, scene: Scene, wall_loop: float, steps_in_loop:
         "neighbours": {"mean": float(counts.mean()) if counts.size else 0.0,
                        "max": int(counts.max()) if counts.size else 0},
         "leaks": sim.leaks,
-        "max_density_deviation": sim.max_density_deviation,
+        "max_compression": sim.max_compression,
         "kinetic_energy": sim.kinetic_energy(),
         "bytes_sent": 0,
         "machine": {"python": platform.python_version(), "platform": platform.platform(),

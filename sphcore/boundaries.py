@@ -34,8 +34,7 @@ def rotation_matrix(degrees) -> np.ndarray:
 class Walls:
     kind: np.ndarray        # (nw,) int32
     data: np.ndarray        # (nw, 16) float
-    phi: np.ndarray         # (nt,) Phi(d) on d in [0, H]
-    g: np.ndarray           # (nt,) G(d) on d in [0, H]
+    tables: np.ndarray      # (4, nt): Phi(d), G0(d), G1(d), G2(d) on d in [0, H] (wall_tables)
     lo: np.ndarray          # (3,) lower corner of the domain's bounding box
     hi: np.ndarray          # (3,) upper corner
     container_walls: int    # the first walls belong to the container
@@ -57,6 +56,7 @@ def container_frame(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
 
 
 def build_walls(scene: Scene, kernel: Kernel, H: float, dtype, table_size: int = 256) -> Walls:
+    dx = scene.particles.spacing
     dom = scene.domain
     c, R = container_frame(scene)
     s = dom.scale
@@ -118,43 +118,61 @@ def build_walls(scene: Scene, kernel: Kernel, H: float, dtype, table_size: int =
     lo, hi = corners.min(axis=0), corners.max(axis=0)
     if scene.dim == 2:
         lo[2], hi[2] = 0.0, 0.0
-    phi, g = wall_tables(kernel, scene.dim, H, table_size)
+    tables = wall_tables(kernel, scene.dim, H, dx, table_size)
     return Walls(
         kind=np.array(kinds, dtype=np.int32),
         data=np.array(rows, dtype=dtype).reshape(len(rows), 16),
-        phi=phi.astype(dtype), g=g.astype(dtype), lo=lo, hi=hi, container_walls=n_container,
+        tables=tables.astype(dtype), lo=lo, hi=hi, container_walls=n_container,
     )
 
 
-def wall_tables(kernel: Kernel, dim: int, H: float, size: int = 256, quad: int = 400):
-    """Phi(d) = integral of W over the half-space at distance d, and G(d) = integral of dW/dr times
-    the normal component of the unit separation over it, for d in [0, H] (midpoint quadrature)."""
+def wall_tables(kernel: Kernel, dim: int, H: float, dx: float, size: int = 256) -> np.ndarray:
+    """Wall tables on d in [0, H]: rows Phi(d), G0(d), G1(d), G2(d) (see sphcore.physics.walls).
+
+    The fluid beyond a wall is taken as the continuation of the initial lattice: rows of virtual
+    particles at normal distances z_k = d + (k + 1/2) dx from the particle, on lattice columns
+    aligned with it. Sums are normalised by the full-lattice sum S = sum_j W(|x_j|) that also sets the
+    particle mass (m = rho0 / S), so a particle of the initial lattice next to a wall has exactly
+    rho0, and a resting hydrostatic column starts in balance.
+
+        Phi(d) = sum_virtual W(r) / S
+        G0(d)  = sum_virtual W'(r) z / r / S          (mirrored pressure, p_j = p_i)
+        G1(d)  = sum_virtual W'(r) z^2 / r / S        (hydrostatic extrapolation along the normal)
+        G2(d)  = sum_virtual W'(r) t^2 / r / S        (... along one tangential axis t)
+    """
     s_w, s_g, _ = kernel_constants(kernel, dim, H)
-    d = np.linspace(0.0, H, size)
-    # sample the slab d < z < H once on a fine midpoint grid; cumulative sums give every d
-    dz = H / quad
-    z = (np.arange(quad) + 0.5) * dz
-    t = (np.arange(quad) + 0.5) / quad  # fraction of the chord / disc radius
-    layer_w = np.zeros(quad)
-    layer_g = np.zeros(quad)
-    wv = np.vectorize(lambda r: w(int(kernel), r, H, s_w))
-    gv = np.vectorize(lambda r: dw_dr(int(kernel), r, H, s_g))
-    for k, zk in enumerate(z):
-        rmax = math.sqrt(max(H * H - zk * zk, 0.0))
-        if dim == 3:  # disc of radius rmax at height zk: integral 2 pi rho f(r) drho
-            rho_ = t * rmax
-            r = np.sqrt(zk * zk + rho_ * rho_)
-            jac = 2.0 * math.pi * rho_ * (rmax / quad)
-        else:  # chord of half-length rmax: integral f(r) dy over [-rmax, rmax]
-            y = t * rmax
-            r = np.sqrt(zk * zk + y * y)
-            jac = 2.0 * (rmax / quad) * np.ones(quad)
-        layer_w[k] = np.sum(wv(r) * jac) * dz
-        rr = np.where(r > 0, r, 1.0)
-        layer_g[k] = np.sum(gv(r) * (zk / rr) * jac) * dz
-    cum_w = np.concatenate([np.cumsum(layer_w[::-1])[::-1], [0.0]])
-    cum_g = np.concatenate([np.cumsum(layer_g[::-1])[::-1], [0.0]])
-    edges = np.concatenate([z - 0.5 * dz, [H]])
-    phi = np.interp(d, edges, cum_w)
-    g = np.interp(d, edges, cum_g)
-    return phi, g
+    K = int(math.ceil(H / dx)) + 1
+    lateral = np.arange(-K, K + 1) * dx
+    if dim == 3:
+        la, lb = np.meshgrid(lateral, lateral, indexing="ij")
+        t2 = (la**2).ravel()
+        l2 = (la**2 + lb**2).ravel()
+    else:
+        t2 = l2 = lateral**2
+    full = [np.sqrt(l2 + z * z) for z in np.arange(-K, K + 1) * dx]
+    wv = np.vectorize(lambda r: w(int(kernel), r, H, s_w), otypes=[float])
+    gv = np.vectorize(lambda r: dw_dr(int(kernel), r, H, s_g), otypes=[float])
+    S = float(sum(wv(r).sum() for r in full))
+    out = np.zeros((4, size))
+    for i, d in enumerate(np.linspace(0.0, H, size)):
+        for k in range(K + 1):
+            z = d + (k + 0.5) * dx
+            if z >= H:
+                break
+            r = np.sqrt(l2 + z * z)
+            out[0, i] += wv(r).sum()
+            dwz = gv(r) * z / r
+            out[1, i] += dwz.sum()
+            out[2, i] += (dwz * z).sum()
+            out[3, i] += (gv(r) / r * t2).sum()
+    return out / S
+
+
+def lattice_sum(kernel: Kernel, dim: int, H: float, dx: float) -> float:
+    """S = sum_j W(|x_j|) over an infinite cubic lattice of spacing dx (self included)."""
+    s_w, _, _ = kernel_constants(kernel, dim, H)
+    K = int(math.ceil(H / dx)) + 1
+    r = np.arange(-K, K + 1) * dx
+    grids = np.meshgrid(*([r] * dim), indexing="ij")
+    dist = np.sqrt(sum(g**2 for g in grids)).ravel()
+    return float(sum(w(int(kernel), float(d), H, s_w) for d in dist))

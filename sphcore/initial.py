@@ -15,24 +15,14 @@ import math
 
 import numpy as np
 
-from sphcore.boundaries import Walls, container_frame
-from sphcore.physics.kernels import w
+from sphcore.boundaries import Walls, container_frame, lattice_sum
 from sphcore.physics.walls import min_wall_distance
 from sphcore.scene import Scene, SceneError
 
 
-def lattice_mass(kernel, dim: int, dx: float, H: float, s_w: float, rho0: float) -> float:
+def lattice_mass(kernel, dim: int, dx: float, H: float, rho0: float) -> float:
     """m such that sum_j m W(x_j) = rho0 on an infinite cubic lattice of spacing dx."""
-    k = int(math.ceil(H / dx)) + 1
-    r = np.arange(-k, k + 1) * dx
-    if dim == 3:
-        gx, gy, gz = np.meshgrid(r, r, r, indexing="ij")
-        dist = np.sqrt(gx**2 + gy**2 + gz**2).ravel()
-    else:
-        gx, gy = np.meshgrid(r, r, indexing="ij")
-        dist = np.sqrt(gx**2 + gy**2).ravel()
-    total = sum(w(int(kernel), float(d), H, s_w) for d in dist)
-    return rho0 / total
+    return rho0 / lattice_sum(kernel, dim, H, dx)
 
 
 def _block_points(block, scene: Scene, dx: float) -> np.ndarray:

@@ -37,6 +37,9 @@ class Params(NamedTuple):
     restitution: float
     friction: float
     wall_gap: float     # closest approach to a wall before collision handling (m)
+    dx: float           # initial lattice spacing (m): the virtual wall lattice
+    inv_s: float        # 1 / S, S = full-lattice kernel sum (1/m^dim); mass m = rho0 / S
+    dim3: bool          # True for 3D scenes
 
 
 def make_params(dtype, **values) -> Params:

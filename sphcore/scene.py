@@ -95,6 +95,8 @@ class Terms:
 class Forces:
     gravity: tuple = spec((0.0, -9.81, 0.0), "gravitational acceleration (m/s^2)", length=VEC)
     external: tuple = spec((0.0, 0.0, 0.0), "constant external acceleration, any direction (m/s^2)", length=VEC)
+    ramp_time: float = spec(0.0, "gravity and external force rise smoothly from 0 over this time (s); 0 = at once",
+                            range=(0.0, 1.0e6))
 
 
 @dataclass(frozen=True)

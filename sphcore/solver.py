@@ -12,10 +12,11 @@ import numpy as np
 
 from sphcore import grid as grid_mod
 from sphcore.backends import cpu
-from sphcore.boundaries import build_walls
+from sphcore.boundaries import build_walls, lattice_sum
 from sphcore.choices import EOSES, INTEGRATORS, KERNELS, VISCOSITIES, Integrator, Viscosity
-from sphcore.initial import generate_particles, lattice_mass
+from sphcore.initial import generate_particles
 from sphcore.params import make_params
+from sphcore.physics.external import ramp_factor
 from sphcore.physics.kernels import kernel_constants, w
 from sphcore.scene import Scene
 from sphcore.state import ParticleState
@@ -51,7 +52,8 @@ class Simulation:
         self.walls = build_walls(scene, self.kernel, self.H, dtype)
         ids, x, v = generate_particles(scene, self.walls)
         rho0 = scene.fluid.rest_density
-        mass = lattice_mass(self.kernel, scene.dim, dx, self.H, s_w, rho0)
+        S = lattice_sum(self.kernel, scene.dim, self.H, dx)
+        mass = rho0 / S
         self.state = ParticleState.create(ids, x, v, np.full(len(ids), mass), dtype)
         self.n_particles = len(ids)
 
@@ -73,7 +75,7 @@ class Simulation:
             period=tuple(self.grid.period), xsph_eps=scene.terms.xsph, sigma=scene.terms.surface_tension,
             st_threshold=scene.terms.surface_threshold / dx, vorticity_eps=scene.terms.vorticity_confinement,
             restitution=scene.boundary.restitution, friction=scene.boundary.friction,
-            wall_gap=scene.boundary.gap * dx,
+            wall_gap=scene.boundary.gap * dx, dx=dx, inv_s=1.0 / S, dim3=scene.dim == 3,
         )
         self.use_xsph = scene.terms.xsph > 0.0
         self.use_surface_tension = scene.terms.surface_tension > 0.0
@@ -90,28 +92,44 @@ class Simulation:
         self.leaks = 0
         self.max_neighbours = 0
         self.mean_neighbours = 0.0
-        self.max_density_deviation = 0.0
+        self.max_compression = 0.0
         self.limit_counts = {name: 0 for name in LIMITS}
+        self.last_limit = ""
+        self.prm_now = self.prm
         self.timers = StageTimers()
 
     # -- stages --------------------------------------------------------------------------------
+    def _ramped_params(self):
+        """Params with the body forces scaled by the ramp factor zeta(t) (physics/external.py)."""
+        zeta = ramp_factor(self.t, self.scene.forces.ramp_time)
+        if zeta == 1.0:
+            self.prm_now = self.prm
+        else:
+            f = self.dtype.type(zeta)
+            p = self.prm
+            self.prm_now = p._replace(gravity_x=p.gravity_x * f, gravity_y=p.gravity_y * f, gravity_z=p.gravity_z * f,
+                                      external_x=p.external_x * f, external_y=p.external_y * f,
+                                      external_z=p.external_z * f)
+        return self.prm_now
+
     def _neighbours(self):
         s = self.state
         self.max_neighbours = max(self.max_neighbours, self.grid.bin(s))  # x -> (cell, id) order, lists
 
     def _density(self):
         s, w_ = self.state, self.walls
-        cpu.compute_density(int(self.kernel), int(self.eos), self.periodic, self.prm, s.n_owned, s.x, s.m,
-                            self.grid.nbr, self.grid.counts, w_.kind, w_.data, w_.phi, s.rho, s.p)
+        cpu.compute_density(int(self.kernel), int(self.eos), self.periodic, self.prm_now, s.n_owned, s.x, s.m,
+                            self.grid.nbr, self.grid.counts, w_.kind, w_.data, w_.tables, s.rho, s.p)
 
     def _forces(self):
         s, w_, g = self.state, self.walls, self.grid
-        cpu.compute_acceleration(int(self.kernel), int(self.viscosity), self.periodic, self.prm, s.n_owned, s.x,
-                                 s.v, s.m, s.rho, s.p, g.nbr, g.counts, w_.kind, w_.data, w_.g, s.a)
+        cpu.compute_acceleration(int(self.kernel), int(self.viscosity), self.periodic, self.prm_now, s.n_owned, s.x,
+                                 s.v, s.m, s.rho, s.p, g.nbr, g.counts, w_.kind, w_.data, w_.tables, s.a)
 
     def step(self, dt_cap: float | None = None):
         """Advance one time step; ``dt_cap`` shortens the last step of an --until run."""
-        s, g, prm, k, per, t = self.state, self.grid, self.prm, int(self.kernel), self.periodic, self.timers
+        s, g, k, per, t = self.state, self.grid, int(self.kernel), self.periodic, self.timers
+        prm = self._ramped_params()
         with t("grid"):
             self._neighbours()                                     # x                -> order, neighbour lists
         with t("density"):
@@ -148,7 +166,7 @@ class Simulation:
         vmax2, amax2, dev, bad = cpu.step_statistics(s.n_owned, s.x, s.v, s.a, s.rho, self.prm.rho0)
         if bad:
             self._fail("NaN or Inf in position, velocity, acceleration or density")
-        self.max_density_deviation = max(self.max_density_deviation, float(dev))
+        self.max_compression = max(self.max_compression, float(dev))
         if 1.0 + dev > self.scene.run.max_density_ratio:
             self._fail(f"density ratio rho/rho0 reached {1.0 + dev:.3g} (run.max_density_ratio = "
                        f"{self.scene.run.max_density_ratio:g}): the time step or the speed of sound is too "
@@ -166,7 +184,7 @@ class Simulation:
         s = self.state
         n = s.n_owned
         if density:
-            rows = np.nonzero(np.abs(s.rho[:n] / self.prm.rho0 - 1.0) + 1.0 > self.scene.run.max_density_ratio)[0]
+            rows = np.nonzero(s.rho[:n] / self.prm.rho0 > self.scene.run.max_density_ratio)[0]
         else:
             finite = np.isfinite(s.x[:n]).all(1) & np.isfinite(s.v[:n]).all(1) & np.isfinite(s.a[:n]).all(1)
             rows = np.nonzero(~(finite & np.isfinite(s.rho[:n])))[0]
@@ -178,6 +196,7 @@ class Simulation:
     def refresh(self):
         """Recompute neighbours, density and pressure (and a) for the current positions, so that
         outputs are consistent; for leapfrog returns velocities synchronised to the full step."""
+        self._ramped_params()
         self._neighbours()
         self._density()
         self._forces()

@@ -2,8 +2,20 @@
 
 Seed 000 let the user turn the force direction with a slider; here the scene gives ``gravity`` and
 ``external`` (both m/s^2) and the total body acceleration g + f_ext is applied to every particle:
-    a_i += g + f_ext
+    a_i += zeta(t) (g + f_ext)
+
+zeta(t) ramps the load in smoothly over ``ramp_time`` T (Adami, Hu & Adams 2012, section 4.1):
+zeta = (sin((t/T - 1/2) pi) + 1) / 2 for t < T, 1 afterwards. A fluid that starts at rest density
+then settles into hydrostatic balance without the acoustic ringing of a sudden load.
 """
+import math
+
+
+def ramp_factor(t: float, ramp_time: float) -> float:
+    """zeta(t) of the module docstring."""
+    if ramp_time <= 0.0 or t >= ramp_time:
+        return 1.0
+    return 0.5 * (math.sin((t / ramp_time - 0.5) * math.pi) + 1.0)
 from numba import njit
 
 

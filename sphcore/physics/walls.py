@@ -3,17 +3,27 @@
 Boundaries are analytic primitives (planes, spheres, cylinders, boxes; ``sphcore.choices.WallKind``)
 instead of boundary particles. Each primitive gives the signed distance d from a particle to the wall
 (positive on the fluid side) and the unit normal n pointing into the fluid. Near a wall the kernel
-support of particle i is cut; following the semi-analytical wall idea of Kulasegaram et al. 2004 and
-Ferrand et al. 2013 (and the density maps of Koschier & Bender 2017), the missing part is treated as
-fluid at rest beyond a locally flat wall:
+support of particle i is cut. In the spirit of semi-analytical walls (Kulasegaram et al. 2004,
+Ferrand et al. 2013) and density maps (Koschier & Bender 2017), the missing part is filled with
+*virtual* fluid: the continuation of the initial particle lattice beyond a locally flat wall (rows
+at normal distances z = d + (k + 1/2) dx from the particle, lattice columns aligned with it), so a
+particle of the initial lattice next to a wall sees exactly the bulk density. With u_j = x_j - x_i,
+S the full-lattice kernel sum (mass m = rho0 / S) and virtual pressures extrapolated
+hydrostatically, p_j = p_i + rho_i b . u_j (b = g + f_ext; Adami, Hu & Adams 2012, eq. 27):
 
-    rho_i += rho0 * Phi(d_i),         Phi(d) = integral over the half-space beyond the wall of W
-    a_i   += 2 max(p_i, 0) rho0 / rho_i^2 * |G(d_i)| n_i,
-             G(d) = integral over that half-space of dW/dr * (normal component of x/r)
+    rho_i += rho0/S sum_virtual W(r_j)
+    a_i   += rho0/(S rho_i^2) sum_virtual (2 p_i + rho_i b . u_j) W'(r_j) u_j / r_j
 
-The second line is the symmetric pressure term of ``pressure.py`` with a mirrored neighbour (same
-p and rho) integrated over the wall. Phi and G depend only on the kernel, the dimension and d/H;
-they are tabulated once (``sphcore.boundaries.wall_tables``) and interpolated linearly.
+which is the symmetric pressure term of ``pressure.py`` summed over the virtual particles. For one
+flat wall the sums reduce to tables of d (``sphcore.boundaries.wall_tables``):
+
+    rho_i += rho0 Phi(d)
+    a_i   += rho0/rho_i^2 (-2 p_i G0(d) n + rho_i (b_n G1(d) n + G2(d) b_t)),   b_n = b . n, b_t = b - b_n n
+
+Where a particle is near two or three mutually perpendicular walls (edges and corners of a box,
+the rim of a cylinder) the virtual regions overlap; inclusion-exclusion removes the overlap
+(pair sums subtracted, the triple sum added back), each summed directly over its few virtual
+points. The normal part of a wall's push is floored at zero: walls never pull.
 
 As a last guard, a particle closer than ``wall_gap`` to a wall is put back to that distance, its
 normal velocity reflected with restitution e and its tangential velocity reduced by the friction
@@ -26,6 +36,8 @@ Box obstacles keep half-extents in [3:6] (they have no plane normal).
 import math
 
 from numba import njit
+
+from sphcore.physics.kernels import dw_dr, w
 
 
 @njit(cache=True, inline="always")
@@ -104,3 +116,123 @@ def min_wall_distance(kinds, data, x, out):
             d, _, _, _ = signed_distance(kinds[q], data[q], x[i, 0], x[i, 1], x[i, 2])
             best = min(best, d)
         out[i] = best
+
+
+@njit(cache=True)
+def _corner_sums(kernel, prm, want_force, na, nb, nc, da, db, dc, triple, coef_p, bx, by, bz):
+    """Sums over the virtual points beyond walls a and b (and c if ``triple``), see module docstring.
+
+    Returns (sum W, fx, fy, fz) with f = sum (coef_p + b . u) W' u / r; walls are given by their
+    distances d and unit normals n (tuples). The lateral axis of a pair is e = n_a x n_b.
+    """
+    dx = prm.dx
+    K = int(prm.H / dx) + 1
+    ex = na[1] * nb[2] - na[2] * nb[1]
+    ey = na[2] * nb[0] - na[0] * nb[2]
+    ez = na[0] * nb[1] - na[1] * nb[0]
+    m_lo = 0
+    m_hi = 0
+    if prm.dim3 and not triple:
+        m_lo = -K
+        m_hi = K
+    sw = 0.0 * dx
+    fx = 0.0 * dx
+    fy = 0.0 * dx
+    fz = 0.0 * dx
+    for k in range(K + 1):
+        za = da + (k + 0.5) * dx
+        for l in range(K + 1):
+            zb = db + (l + 0.5) * dx
+            for m in range(m_lo, m_hi + 1) if not triple else range(K + 1):
+                if triple:
+                    zc = dc + (m + 0.5) * dx
+                    ux = -za * na[0] - zb * nb[0] - zc * nc[0]
+                    uy = -za * na[1] - zb * nb[1] - zc * nc[1]
+                    uz = -za * na[2] - zb * nb[2] - zc * nc[2]
+                else:
+                    ux = -za * na[0] - zb * nb[0] + m * dx * ex
+                    uy = -za * na[1] - zb * nb[1] + m * dx * ey
+                    uz = -za * na[2] - zb * nb[2] + m * dx * ez
+                r = math.sqrt(ux * ux + uy * uy + uz * uz)
+                if r >= prm.H:
+                    continue
+                if want_force:
+                    c = (coef_p + bx * ux + by * uy + bz * uz) * dw_dr(kernel, r, prm.H, prm.s_g) / r
+                    fx += c * ux
+                    fy += c * uy
+                    fz += c * uz
+                else:
+                    sw += w(kernel, r, prm.H, prm.s_w)
+    return sw, fx, fy, fz
+
+
+@njit(cache=True)
+def _perpendicular(n1, n2):
+    return abs(n1[0] * n2[0] + n1[1] * n2[1] + n1[2] * n2[2]) < 1.0e-6
+
+
+@njit(cache=True)
+def wall_terms(kernel, prm, want_force, kinds, data, tables, x, y, z, p_i, rho_i, bx, by, bz):
+    """Wall contributions at (x, y, z): (delta rho, ax, ay, az) — density share when ``want_force``
+    is false, pressure acceleration when true (module docstring)."""
+    H = prm.H
+    drho = 0.0 * H
+    ax = 0.0 * H
+    ay = 0.0 * H
+    az = 0.0 * H
+    near = 0
+    d1 = d2 = d3 = H
+    n1 = n2 = n3 = (0.0 * H, 0.0 * H, 0.0 * H)
+    for q in range(kinds.shape[0]):
+        d, nx, ny, nz = signed_distance(kinds[q], data[q], x, y, z)
+        if d >= H:
+            continue
+        if want_force:
+            b_n = bx * nx + by * ny + bz * nz
+            push = prm.rho0 / (rho_i * rho_i) * (-2.0 * p_i * table_lookup(tables[1], d, H)
+                                                  + rho_i * b_n * table_lookup(tables[2], d, H))
+            if push > 0.0:
+                ax += push * nx
+                ay += push * ny
+                az += push * nz
+            g2 = prm.rho0 / rho_i * table_lookup(tables[3], d, H)
+            ax += g2 * (bx - b_n * nx)
+            ay += g2 * (by - b_n * ny)
+            az += g2 * (bz - b_n * nz)
+        else:
+            drho += prm.rho0 * table_lookup(tables[0], d, H)
+        if near == 0:
+            d1, n1 = d, (nx, ny, nz)
+        elif near == 1:
+            d2, n2 = d, (nx, ny, nz)
+        elif near == 2:
+            d3, n3 = d, (nx, ny, nz)
+        near += 1
+    if near < 2:
+        return drho, ax, ay, az
+    # inclusion-exclusion over perpendicular pairs (and the triple) of the first three near walls
+    coef = 2.0 * p_i / rho_i
+    scale_f = prm.rho0 * prm.inv_s / rho_i
+    for pair in range(3):
+        if pair == 0:
+            da, na, db, nb = d1, n1, d2, n2
+        elif pair == 1:
+            if near < 3:
+                break
+            da, na, db, nb = d1, n1, d3, n3
+        else:
+            da, na, db, nb = d2, n2, d3, n3
+        if not _perpendicular(na, nb):
+            continue
+        sw, fx, fy, fz = _corner_sums(kernel, prm, want_force, na, nb, nb, da, db, db, False, coef, bx, by, bz)
+        drho -= prm.rho0 * prm.inv_s * sw
+        ax -= scale_f * fx
+        ay -= scale_f * fy
+        az -= scale_f * fz
+    if near >= 3 and prm.dim3 and _perpendicular(n1, n2) and _perpendicular(n1, n3) and _perpendicular(n2, n3):
+        sw, fx, fy, fz = _corner_sums(kernel, prm, want_force, n1, n2, n3, d1, d2, d3, True, coef, bx, by, bz)
+        drho += prm.rho0 * prm.inv_s * sw
+        ax += scale_f * fx
+        ay += scale_f * fy
+        az += scale_f * fz
+    return drho, ax, ay, az
