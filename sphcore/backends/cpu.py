@@ -14,7 +14,7 @@ from sphcore.backends.literal import literal_dispatch
 from sphcore.physics.density import density_pair
 from sphcore.physics.eos import pressure
 from sphcore.physics.external import body_acceleration
-from sphcore.physics.kernels import dw_dr, lap_w_viscosity, w
+from sphcore.physics.kernels import dw_dr_over_r, lap_w_viscosity, w
 from sphcore.physics.pressure import pressure_pair
 from sphcore.physics.surface_tension import colour_gradient_pair, colour_laplacian_pair, surface_tension_factor
 from sphcore.physics.viscosity import artificial_pair, morris_pair, muller_pair
@@ -76,6 +76,7 @@ def compute_acceleration(kernel, viscosity, periodic, prm, n, x, v, m, rho, p, n
         az = bz * 1.0
         rho_i = rho[i]
         p_i = p[i]
+        p_rho2_i = p_i / (rho_i * rho_i)
         for k in range(counts[i]):
             j = nbr[i, k]
             dx, dy, dz = separation(periodic, x, i, j, prm)
@@ -83,9 +84,8 @@ def compute_acceleration(kernel, viscosity, periodic, prm, n, x, v, m, rho, p, n
             if r2 == 0.0:
                 continue  # coincident particles: no direction, no pressure force
             r_ij = math.sqrt(r2)
-            dw = dw_dr(kernel, r_ij, prm.H, prm.s_g)
-            dw_over_r = dw / r_ij
-            f = pressure_pair(m[j], p_i, rho_i, p[j], rho[j], dw) / r_ij
+            dw_over_r = dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
+            f = pressure_pair(m[j], p_rho2_i, p[j], rho[j], dw_over_r)
             if viscosity == 1:  # Viscosity.ARTIFICIAL
                 vdotx = ((v[i, 0] - v[j, 0]) * dx + (v[i, 1] - v[j, 1]) * dy + (v[i, 2] - v[j, 2]) * dz)
                 f += artificial_pair(m[j], vdotx, r2, rho_i, rho[j], dw_over_r, prm.alpha, prm.c0, prm.h)
@@ -130,7 +130,7 @@ def add_surface_tension(kernel, periodic, prm, n, x, m, rho, nbr, counts, a):
             if r2 == 0.0:
                 continue
             r_ij = math.sqrt(r2)
-            f = colour_gradient_pair(m[j], rho[j], dw_dr(kernel, r_ij, prm.H, prm.s_g) / r_ij)
+            f = colour_gradient_pair(m[j], rho[j], dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g))
             gx += f * dx
             gy += f * dy
             gz += f * dz
@@ -159,7 +159,7 @@ def compute_vorticity(kernel, periodic, prm, n, x, v, m, rho, nbr, counts, omega
             if r2 == 0.0:
                 continue
             r_ij = math.sqrt(r2)
-            g = dw_dr(kernel, r_ij, prm.H, prm.s_g) / r_ij
+            g = dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
             cx, cy, cz = curl_pair(m[j] / rho[j], v[j, 0] - v[i, 0], v[j, 1] - v[i, 1], v[j, 2] - v[i, 2],
                                    g * dx, g * dy, g * dz)
             ox += cx
@@ -188,7 +188,7 @@ def add_vorticity_confinement(kernel, periodic, prm, n, x, m, rho, omega, nbr, c
                 continue
             r_ij = math.sqrt(r2)
             wj = math.sqrt(omega[j, 0] ** 2 + omega[j, 1] ** 2 + omega[j, 2] ** 2)
-            g = m[j] / rho[j] * wj * dw_dr(kernel, r_ij, prm.H, prm.s_g) / r_ij
+            g = m[j] / rho[j] * wj * dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
             ex += g * dx
             ey += g * dy
             ez += g * dz

@@ -98,6 +98,28 @@ def dw_dr(kernel, r, H, s_g):
 
 
 @njit(cache=True, inline="always")
+def dw_dr_over_r(kernel, r, H, s_g):
+    """(dW/dr) / r, so that grad W = dw_dr_over_r * x_ij. Division-free for the cubic spline (inner
+    part) and Wendland C2: divisions bound the force pass, several per pair otherwise."""
+    if r >= H:
+        return 0.0 * s_g
+    if kernel == 0:  # Kernel.MULLER: spiky
+        t = H - r
+        return -3.0 * s_g * t * t / r
+    elif kernel == 1:  # Kernel.CUBIC_SPLINE
+        h = 0.5 * H
+        q = r / h
+        if q < 1.0:
+            return s_g / (h * h) * (-3.0 + 2.25 * q)
+        t = 2.0 - q
+        return -0.75 * s_g / h * t * t / r
+    else:  # Kernel.WENDLAND_C2: dW/dr = -20 s q (1-q)^3 / H and q / r = 1 / H
+        q = r / H
+        t = 1.0 - q
+        return -20.0 * s_g / (H * H) * t * t * t
+
+
+@njit(cache=True, inline="always")
 def lap_w_viscosity(r, H, s_l):
     """Laplacian of Müller's viscosity kernel, s_l (H - r) for r < H (Müller 2003 eq. 22)."""
     if r >= H:

@@ -9,6 +9,7 @@ from numba import njit
 
 
 @njit(cache=True, inline="always")
-def pressure_pair(m_j, p_i, rho_i, p_j, rho_j, dw):
-    """Scalar factor f so that the pair acceleration is f * x_ij / r_ij (dw = dW/dr at r_ij)."""
-    return -m_j * (p_i / (rho_i * rho_i) + p_j / (rho_j * rho_j)) * dw
+def pressure_pair(m_j, p_rho2_i, p_j, rho_j, dw_over_r):
+    """Scalar factor f so that the pair acceleration is f * x_ij; p_rho2_i = p_i / rho_i^2 and
+    dw_over_r = (dW/dr) / r_ij."""
+    return -m_j * (p_rho2_i + p_j / (rho_j * rho_j)) * dw_over_r
