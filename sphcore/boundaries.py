@@ -55,7 +55,7 @@ def container_frame(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     return np.array(dom.center, dtype=float), rotation_matrix(dom.rotation)
 
 
-def build_walls(scene: Scene, kernel: Kernel, H: float, dtype, table_size: int = 256) -> Walls:
+def build_walls(scene: Scene, kernel: Kernel, H: float, dtype) -> Walls:
     dx = scene.particles.spacing
     dom = scene.domain
     c, R = container_frame(scene)
@@ -118,7 +118,7 @@ def build_walls(scene: Scene, kernel: Kernel, H: float, dtype, table_size: int =
     lo, hi = corners.min(axis=0), corners.max(axis=0)
     if scene.dim == 2:
         lo[2], hi[2] = 0.0, 0.0
-    tables = wall_tables(kernel, scene.dim, H, dx, table_size)
+    tables = wall_tables(kernel, scene.dim, H, dx)
     return Walls(
         kind=np.array(kinds, dtype=np.int32),
         data=np.array(rows, dtype=dtype).reshape(len(rows), 16),
@@ -126,8 +126,10 @@ def build_walls(scene: Scene, kernel: Kernel, H: float, dtype, table_size: int =
     )
 
 
-def wall_tables(kernel: Kernel, dim: int, H: float, dx: float, size: int = 256) -> np.ndarray:
-    """Wall tables on d in [0, H]: rows Phi(d), G0(d), G1(d), G2(d) (see sphcore.physics.walls).
+def wall_tables(kernel: Kernel, dim: int, H: float, dx: float, per_half_spacing: int = 64) -> np.ndarray:
+    """Wall tables on d in [0, table_end(H, dx)]: rows Phi(d), G0(d), G1(d), G2(d) (see
+    sphcore.physics.walls). Samples are dx / (2 per_half_spacing) apart, so d = dx/2 — a lattice
+    particle next to a wall — is a sample and is looked up exactly.
 
     The fluid beyond a wall is taken as the continuation of the initial lattice: rows of virtual
     particles at normal distances z_k = d + (k + 1/2) dx from the particle, on lattice columns
@@ -153,8 +155,10 @@ def wall_tables(kernel: Kernel, dim: int, H: float, dx: float, size: int = 256) 
     wv = np.vectorize(lambda r: w(int(kernel), r, H, s_w), otypes=[float])
     gv = np.vectorize(lambda r: dw_dr(int(kernel), r, H, s_g), otypes=[float])
     S = float(sum(wv(r).sum() for r in full))
+    end = table_end(H, dx)
+    size = int(round(end / (0.5 * dx))) * per_half_spacing + 1
     out = np.zeros((4, size))
-    for i, d in enumerate(np.linspace(0.0, H, size)):
+    for i, d in enumerate(np.linspace(0.0, end, size)):
         for k in range(K + 1):
             z = d + (k + 0.5) * dx
             if z >= H:
@@ -166,6 +170,11 @@ def wall_tables(kernel: Kernel, dim: int, H: float, dx: float, size: int = 256) 
             out[2, i] += (dwz * z).sum()
             out[3, i] += (gv(r) / r * t2).sum()
     return out / S
+
+
+def table_end(H: float, dx: float) -> float:
+    """The wall tables span [0, end], end = the first multiple of dx/2 at or beyond H."""
+    return math.ceil(H / (0.5 * dx) - 1e-9) * 0.5 * dx
 
 
 def lattice_sum(kernel: Kernel, dim: int, H: float, dx: float) -> float:

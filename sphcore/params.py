@@ -40,6 +40,7 @@ class Params(NamedTuple):
     dx: float           # initial lattice spacing (m): the virtual wall lattice
     inv_s: float        # 1 / S, S = full-lattice kernel sum (1/m^dim); mass m = rho0 / S
     dim3: bool          # True for 3D scenes
+    wall_table_end: float  # wall tables span d in [0, wall_table_end] (m), boundaries.table_end
 
 
 def make_params(dtype, **values) -> Params:

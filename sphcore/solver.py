@@ -12,7 +12,7 @@ import numpy as np
 
 from sphcore import grid as grid_mod
 from sphcore.backends import cpu
-from sphcore.boundaries import build_walls, lattice_sum
+from sphcore.boundaries import build_walls, lattice_sum, table_end
 from sphcore.choices import EOSES, INTEGRATORS, KERNELS, VISCOSITIES, Integrator, Viscosity
 from sphcore.initial import generate_particles
 from sphcore.params import make_params
@@ -76,6 +76,7 @@ class Simulation:
             st_threshold=scene.terms.surface_threshold / dx, vorticity_eps=scene.terms.vorticity_confinement,
             restitution=scene.boundary.restitution, friction=scene.boundary.friction,
             wall_gap=scene.boundary.gap * dx, dx=dx, inv_s=1.0 / S, dim3=scene.dim == 3,
+            wall_table_end=table_end(self.H, dx),
         )
         self.use_xsph = scene.terms.xsph > 0.0
         self.use_surface_tension = scene.terms.surface_tension > 0.0

@@ -96,12 +96,12 @@ def signed_distance(kind, wd, x, y, z):
 
 
 @njit(cache=True, inline="always")
-def table_lookup(table, d, H):
-    """Linear interpolation of a wall table sampled on d in [0, H]; 0 beyond H, table[0] below 0."""
-    if d >= H:
+def table_lookup(table, d, end):
+    """Linear interpolation of a wall table sampled on d in [0, end]; 0 beyond, table[0] below 0."""
+    if d >= end:
         return 0.0 * table[0]
     n = table.shape[0] - 1
-    s = max(d, 0.0) / H * n
+    s = max(d, 0.0) / end * n
     k = min(int(s), n - 1)
     f = s - k
     return table[k] * (1.0 - f) + table[k + 1] * f
@@ -189,18 +189,18 @@ def wall_terms(kernel, prm, want_force, kinds, data, tables, x, y, z, p_i, rho_i
             continue
         if want_force:
             b_n = bx * nx + by * ny + bz * nz
-            push = prm.rho0 / (rho_i * rho_i) * (-2.0 * p_i * table_lookup(tables[1], d, H)
-                                                  + rho_i * b_n * table_lookup(tables[2], d, H))
+            push = prm.rho0 / (rho_i * rho_i) * (-2.0 * p_i * table_lookup(tables[1], d, prm.wall_table_end)
+                                                  + rho_i * b_n * table_lookup(tables[2], d, prm.wall_table_end))
             if push > 0.0:
                 ax += push * nx
                 ay += push * ny
                 az += push * nz
-            g2 = prm.rho0 / rho_i * table_lookup(tables[3], d, H)
+            g2 = prm.rho0 / rho_i * table_lookup(tables[3], d, prm.wall_table_end)
             ax += g2 * (bx - b_n * nx)
             ay += g2 * (by - b_n * ny)
             az += g2 * (bz - b_n * nz)
         else:
-            drho += prm.rho0 * table_lookup(tables[0], d, H)
+            drho += prm.rho0 * table_lookup(tables[0], d, prm.wall_table_end)
         if near == 0:
             d1, n1 = d, (nx, ny, nz)
         elif near == 1:
