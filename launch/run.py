@@ -30,8 +30,8 @@ class Progress:
         self.total = total
         self.unit = unit
         self.bar = None
-        self.last_log = time.monotonic()
-        self.log_every = log_every
+        self.log_every = log_every  # steps between log lines; 0 = every 5 % of the run
+        self.next_mark = 0.05
         self.enabled = enabled
         if enabled and sys.stderr.isatty():
             from tqdm import tqdm
@@ -47,8 +47,12 @@ class Progress:
             self.bar.set_postfix_str(f"t={sim.t:.4g}s dt={sim.dt:.2g} ({sim.last_limit}) {rate:.2g} p-steps/s",
                                      refresh=False)
             self.bar.refresh()
-        elif step % self.log_every == 0 or done >= self.total:
-            log.info("%s  (%.0f%%)", info, 100.0 * min(done / self.total, 1.0) if self.total else 100.0)
+        else:
+            fraction = min(done / self.total, 1.0) if self.total else 1.0
+            due = (step % self.log_every == 0) if self.log_every else fraction >= self.next_mark
+            if due or fraction >= 1.0:
+                self.next_mark = (int(fraction * 20) + 1) / 20.0
+                log.info("%s  (%.0f%%)", info, 100.0 * fraction)
 
     def close(self):
         if self.bar is not None:
@@ -76,8 +80,7 @@ def run_scene(scene: Scene, out: Path, precision: str | None, steps: int | None,
     sim.timers.reset()
     steps_in_loop = 0
     total = target_steps if target_steps is not None else until
-    bar = Progress(total, "steps" if target_steps is not None else "s", scene.run.log_every
-                   or max(1, (target_steps or 1000) // 20), enabled=progress)
+    bar = Progress(total, "steps" if target_steps is not None else "s", scene.run.log_every, enabled=progress)
     t_loop = time.perf_counter()
     try:
         while True:

@@ -156,7 +156,7 @@ class Boundary:
 @dataclass(frozen=True)
 class Run:
     precision: str = spec("f64", "floating point precision (--precision overrides)", choices=("f32", "f64"))
-    log_every: int = spec(0, "steps between progress log lines when not on a terminal (0 = about 20 lines)",
+    log_every: int = spec(0, "steps between progress log lines when not on a terminal (0 = every 5 % of the run)",
                           range=(0, 10**9))
     max_density_ratio: float = spec(3.0, "stop with a diagnostic if some rho/rho0 exceeds this",
                                     range=(1.0, math.inf), min_exclusive=True)
@@ -445,3 +445,41 @@ def _check_combinations(s: Scene) -> Scene:
     if s.time.mode == "fixed" and s.time.integrator == "leapfrog" and s.time.dt <= 0:
         raise SceneError(f"time.dt = {s.time.dt!r}: must be positive")
     return s
+
+
+def reference_markdown() -> str:
+    """Markdown tables of every scene key (section, key, default, allowed, meaning), generated from
+    the declarations above; docs/USAGE.md embeds it and a test keeps the two equal."""
+    lines = []
+    tables = [(name, cls) for name, cls in SECTIONS.items() if name != "obstacles"]
+    tables.insert(tables.index(("domain", Domain)) + 1, ("obstacles", Obstacle))
+    for path, cls in tables + [("fluid.blocks", Block), ("domain.planes", Plane)]:
+        header = f"[[{path}]]" if path in LIST_ITEMS else f"[{path}]"
+        lines += [f"#### `{header}`", "", "| key | default | allowed | meaning |", "|---|---|---|---|"]
+        for f in dataclasses.fields(cls):
+            if f"{path}.{f.name}" in LIST_ITEMS:
+                continue
+            meta = f.metadata
+            default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
+            allowed = ""
+            if meta.get("choices"):
+                allowed = ", ".join(f"`{c}`" for c in meta["choices"])
+            elif meta.get("range"):
+                lo, hi = meta["range"]
+                allowed = f"{'(' if meta.get('min_exclusive') else '['}{lo:g}, {hi:g}]"
+            elif meta.get("length"):
+                allowed = "2 or 3 components"
+            shown = _toml_value(default)
+            lines.append(f"| `{f.name}` | `{shown}` | {allowed} | {meta['help']} |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return f'"{v}"'
+    if isinstance(v, (tuple, list)):
+        return "[" + ", ".join(_toml_value(e) for e in v) + "]"
+    return f"{v:g}" if isinstance(v, float) else str(v)

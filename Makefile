@@ -1,0 +1,29 @@
+# The two commands of the README:
+#   make demo   set up .venv and run the demo scene (3D dam break, ~49k particles, 200 steps) into runs/demo
+#   make test   set up .venv and run the default test suite
+# Others:
+#   make test-slow     the heavier suites (pytest -m slow)
+#   make bench         sph bench (add the reference codes with: bash scripts/setup_bench.sh; make bench-external)
+
+PY := .venv/bin/python
+SPH := .venv/bin/sph
+
+.PHONY: setup demo test test-slow bench bench-external
+
+setup:
+	bash scripts/setup.sh
+
+demo: setup
+	$(SPH) run configs/dam_break.toml --steps 200 --out runs/demo
+
+test: setup
+	$(PY) -m pytest
+
+test-slow: setup
+	$(PY) -m pytest -m slow
+
+bench: setup
+	$(SPH) bench --json runs/bench/bench.json
+
+bench-external: setup
+	$(SPH) bench --sizes 50000 --external --steps 200 --json runs/bench/bench_external.json

@@ -1,0 +1,152 @@
+"""``sph bench``: particle-steps/s of the 3D dam break against N, precision and threads.
+
+Each case sets the spacing so that the dam break's water column holds about N particles, runs one
+step to compile (or load numba's cache), then times ``--steps`` steps of the stepping loop only.
+With ``--external`` the same scene (same tank, column, spacing and step count) runs in PySPH and
+SPlisHSPlasH in subprocesses (``launch/external``), so all figures come from one run on one
+machine, and ratios are printed side by side.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import platform
+import sys
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numba
+import numpy as np
+
+from sphcore.scene import load_scene
+from sphcore.solver import Simulation
+
+log = logging.getLogger("sph.bench")
+DEFAULT_SCENE = Path(__file__).resolve().parent.parent / "configs" / "dam_break.toml"
+
+
+def spacing_for(scene_path: Path, target: int) -> float:
+    """Spacing that gives about ``target`` particles (volume of the fluid blocks / dx^dim)."""
+    scene = load_scene(scene_path)
+    dim = scene.dim
+    volume = 0.0
+    for b in scene.fluid.blocks:
+        if b.shape == "box":
+            volume += float(np.prod([b.max[d] - b.min[d] for d in range(dim)]))
+        else:
+            volume += (np.pi * b.radius**2) if dim == 2 else (4.0 / 3.0 * np.pi * b.radius**3)
+    return float((volume / target) ** (1.0 / dim))
+
+
+def bench_case(scene_path: Path, dx: float, precision: str, threads: int, steps: int) -> dict:
+    numba.set_num_threads(threads)
+    scene = load_scene(scene_path, [f"particles.spacing={dx!r}", "time.mode='fixed'", "time.dt=1e-4"])
+    sim = Simulation(scene, precision)
+    t0 = time.perf_counter()
+    sim.step()  # compile or load the cache
+    first = time.perf_counter() - t0
+    sim.timers.reset()
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        sim.step()
+    wall = time.perf_counter() - t0
+    stages = {k: v["median_s"] for k, v in sim.timers.summary().items()}
+    return {
+        "code": "sphfluid", "method": "wcsph", "precision": precision, "threads": threads,
+        "particles": sim.n_particles, "dx": dx, "steps": steps, "dt": sim.dt, "wall_s": wall,
+        "particle_steps_per_s": sim.n_particles * steps / wall, "first_step_s": first,
+        "neighbours": float(sim.grid.counts[: sim.state.n_owned].mean()), "stage_median_s": stages,
+        "leaks": sim.leaks,
+    }
+
+
+def run_bench(args) -> int:
+    scene_path = args.config or DEFAULT_SCENE
+    threads_available = numba.config.NUMBA_NUM_THREADS
+    for t in args.threads:
+        if t < 1 or t > threads_available:
+            from launch.cli import UsageError
+            raise UsageError(f"--threads {t}: this machine allows 1..{threads_available}")
+    results = []
+    started = datetime.now(timezone.utc)
+    for target in args.sizes:
+        dx = spacing_for(scene_path, target)
+        for precision in args.precisions:
+            for threads in args.threads:
+                r = bench_case(scene_path, dx, precision, threads, args.steps)
+                results.append(r)
+                print(_row(r), flush=True)
+        if args.external:
+            results += _external(dx, args.steps, args.threads)
+    _print_ratios(results)
+    report = {
+        "date": started.isoformat(timespec="seconds"), "command": "sph " + " ".join(sys.argv[2:]),
+        "machine": {"platform": platform.platform(), "cpu": _cpu_name(), "cores": numba.config.NUMBA_NUM_THREADS,
+                    "python": platform.python_version(), "numba": numba.__version__},
+        "scene": str(scene_path), "results": results,
+    }
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(report, indent=2) + "\n")
+        print(f"wrote {args.json}", file=sys.stderr)
+    return 0
+
+
+def _external(dx: float, steps: int, threads_list) -> list[dict]:
+    from launch.external.runner import available, run_external
+    out = []
+    for code, methods in (("splishsplash", ("wcsph", "dfsph")), ("pysph", ("wcsph",))):
+        if not available(code):
+            print(f"  {code}: not installed (scripts/setup_bench.sh installs it); skipped", file=sys.stderr)
+            continue
+        for method in methods:
+            for threads in threads_list:
+                try:
+                    r = run_external(code, method, dx=dx, steps=steps, threads=threads)
+                except RuntimeError as e:
+                    print(f"  {code} {method}: failed: {e}", file=sys.stderr)
+                    continue
+                r.setdefault("precision", "f64")
+                r["dx"] = dx
+                out.append(r)
+                print(_row(r), flush=True)
+    return out
+
+
+def _row(r: dict) -> str:
+    stages = r.get("stage_median_s")
+    split = ""
+    if stages:
+        split = "  " + " ".join(f"{k}={v * 1e3:.1f}ms" for k, v in stages.items())
+    nb = r.get("neighbours")
+    nb_text = f"{nb:5.1f}" if isinstance(nb, (int, float)) else "    -"
+    return (f"{r['code']:>13} {r['method']:>6} {r.get('precision', 'f64'):>4} threads={r['threads']} "
+            f"N={r['particles']:>8} nbrs={nb_text} {r['particle_steps_per_s']:10.3e} particle-steps/s{split}")
+
+
+def _print_ratios(results: list[dict]):
+    ours = [r for r in results if r["code"] == "sphfluid"]
+    theirs = [r for r in results if r["code"] != "sphfluid"]
+    if not theirs:
+        return
+    print("\nratios (ours / reference, same dx, steps and threads):")
+    for t in theirs:
+        for precision in ("f32", "f64"):
+            match = [o for o in ours if o["threads"] == t["threads"] and o["precision"] == precision
+                     and abs(o["dx"] - t["dx"]) < 1e-12]
+            if match:
+                o = match[0]
+                print(f"  ours {precision} vs {t['code']} {t['method']} threads={t['threads']} "
+                      f"N={o['particles']}/{t['particles']}: "
+                      f"{o['particle_steps_per_s'] / t['particle_steps_per_s']:.2f}x")
+
+
+def _cpu_name() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor()
