@@ -86,6 +86,7 @@ def run(dx: float, steps: int, threads: int, hdx: float, layers: int,
         from pysph.sph.integrator import EPECIntegrator, PECIntegrator
         from pysph.sph.scheme import WCSPHScheme
         from cyarray.api import UIntArray
+        import numpy as np
 
         integrator_cls = {"pec": PECIntegrator, "epec": EPECIntegrator}[integrator]
         marks: list[float] = []
@@ -122,6 +123,8 @@ def run(dx: float, steps: int, threads: int, hdx: float, layers: int,
         wall = marks[target - 1] - marks[0]
 
         fluid, boundary = app.particles
+        front_x = float(fluid.x.max())
+        ok = bool(np.all(np.isfinite(fluid.x)) and np.all(np.isfinite(fluid.y)))
         n_fluid = int(fluid.get_number_of_particles())
         n_bound = int(boundary.get_number_of_particles())
         # Mean neighbours per fluid particle (end state, within 2h, self
@@ -161,6 +164,8 @@ def run(dx: float, steps: int, threads: int, hdx: float, layers: int,
         "hdx": hdx,
         "boundary_layers": layers,
         "integrator": integrator,
+        "front_x_end": front_x,
+        "finite": ok,
         "alpha": alpha,
         "version": _version(),
     }
