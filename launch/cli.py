@@ -139,6 +139,8 @@ def _cmd_scene(args) -> int:
 
 def _cmd_run(args) -> int:
     from sphcore.scene import load_scene
+    if args.peers < 1:
+        raise UsageError(f"--peers {args.peers}: at least one peer is needed")
     if args.peers > 1:
         raise UsageError(f"--peers {args.peers}: multi-peer runs are not available yet; use --peers 1")
     if args.backend != "cpu":

@@ -101,7 +101,9 @@ def run_scene(scene: Scene, out: Path, precision: str | None, steps: int | None,
     summary = make_summary(sim, scene, wall_loop, steps_in_loop, t_setup, t_first,
                            time.perf_counter() - t_start)
     out.mkdir(parents=True, exist_ok=True)
-    write_scene(out / "scene.toml", scene.to_dict())
+    resolved = scene.to_dict()
+    resolved["run"]["precision"] = sim.precision  # what ran, --precision included
+    write_scene(out / "scene.toml", resolved)
     write_final(out / "final.npz", final)
     write_summary(out / "summary.json", summary)
     return summary

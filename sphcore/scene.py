@@ -25,8 +25,10 @@ def spec(default, help: str, *, range: tuple | None = None, choices=None, min_ex
          length: tuple | None = None):
     """Declare a scene key: default, help text and constraints (checked by ``_check_value``)."""
     meta = {"help": help, "range": range, "choices": choices, "min_exclusive": min_exclusive, "length": length}
-    if isinstance(default, (list, dict)):
-        return field(default_factory=lambda: default, metadata=meta)
+    if isinstance(default, list):  # arrays of tables are held as tuples, exactly as _build stores them
+        return field(default=tuple(default), metadata=meta)
+    if isinstance(default, dict):
+        return field(default_factory=lambda: dict(default), metadata=meta)
     return field(default=default, metadata=meta)
 
 
@@ -212,6 +214,19 @@ def _type_name(t) -> str:
             "tuple": "an array", "list": "an array of tables"}.get(t, t)
 
 
+def _finite(x) -> bool:
+    """math.isfinite that is False (instead of raising OverflowError) for ints beyond float range."""
+    try:
+        return math.isfinite(x)
+    except OverflowError:
+        return False
+
+
+def _short(value, limit: int = 60) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
 def _check_value(key: str, f: dataclasses.Field, value: Any):
     """Type- and range-check one value; return it normalised (ints to floats, lists to tuples)."""
     t = f.type if isinstance(f.type, str) else f.type.__name__
@@ -219,6 +234,8 @@ def _check_value(key: str, f: dataclasses.Field, value: Any):
     if t == "float":
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise SceneError(f"{key} = {value!r}: expected {_type_name(t)}")
+        if not _finite(value):
+            raise SceneError(f"{key} = {_short(value)}: expected a finite number")
         value = float(value)
         if not math.isfinite(value):
             raise SceneError(f"{key} = {value!r}: expected a finite number")
@@ -245,8 +262,8 @@ def _check_value(key: str, f: dataclasses.Field, value: Any):
                     raise SceneError(f"{key} = {value!r}: expected an array of true/false")
                 out.append(e)
             else:
-                if isinstance(e, bool) or not isinstance(e, (int, float)) or not math.isfinite(e):
-                    raise SceneError(f"{key} = {value!r}: expected an array of finite numbers")
+                if isinstance(e, bool) or not isinstance(e, (int, float)) or not _finite(e):
+                    raise SceneError(f"{key} = {_short(value)}: expected an array of finite numbers")
                 out.append(float(e))
         return tuple(out)
     choices = meta.get("choices")
@@ -299,6 +316,8 @@ def parse_override(text: str) -> tuple[list, Any]:
             raise SceneError(f"--set {text!r}: empty key segment")
         while "[" in part:
             name, rest = part.split("[", 1)
+            if "]" not in rest:
+                raise SceneError(f"--set {text!r}: missing ']' after '[{rest}'")
             index, part = rest.split("]", 1)
             if name:
                 path.append(name)
@@ -309,7 +328,7 @@ def parse_override(text: str) -> tuple[list, Any]:
             path.append(part)
     try:
         value = tomllib.loads(f"v = {rhs.strip()}")["v"]
-    except tomllib.TOMLDecodeError:
+    except ValueError:  # TOMLDecodeError, or an integer longer than Python's int_max_str_digits
         value = rhs.strip()
     return path, value
 
@@ -344,7 +363,7 @@ def load_scene(path: str | Path, overrides: list[str] = ()) -> Scene:
         raise SceneError(f"cannot read scene file {str(path)!r}: {e.strerror}") from None
     try:
         data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
+    except ValueError as e:  # TOMLDecodeError, or an integer longer than int_max_str_digits
         raise SceneError(f"{path}: not valid TOML: {e}") from None
     for text_ in overrides:
         p, v = parse_override(text_)

@@ -1,0 +1,227 @@
+"""The ``sph`` command line: exit codes, error messages, the run outputs contract, help texts.
+
+Everything goes through ``launch.cli.main([...])`` in-process, except one real run of the installed
+``sph`` console script, which proves the entry point and its exit code.
+"""
+import dataclasses
+import json
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from launch.cli import main
+from sphcore.scene import load_scene, scene_from_dict
+
+from conftest import CONFIGS, ROOT
+
+TINY = str(CONFIGS / "tiny.toml")
+DAM_BREAK = str(CONFIGS / "dam_break.toml")
+STAGE_STATS = ("mean_s", "median_s", "std_s")
+
+
+# ---------------------------------------------------------------------------------------------
+# One real run of the console script
+# ---------------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    """``sph run configs/tiny.toml --steps 5`` through the installed console script."""
+    sph = Path(sys.executable).with_name("sph")
+    assert sph.exists(), f"console script missing: {sph} (pip install -e .)"
+    out = tmp_path_factory.mktemp("cli") / "tiny_run"
+    proc = subprocess.run([str(sph), "run", TINY, "--steps", "5", "--out", str(out), "--quiet"],
+                          cwd=ROOT, capture_output=True, text=True, timeout=300)
+    return proc, out
+
+
+def test_console_script_run_exits_0_and_writes_the_three_outputs(tiny_run):
+    proc, out = tiny_run
+    assert proc.returncode == 0, proc.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["final.npz", "scene.toml", "summary.json"]
+
+
+def test_summary_json_contract(tiny_run):
+    proc, out = tiny_run
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    for key in ("particles", "steps", "sim_time", "wall_s", "peers", "backend", "precision",
+                "particle_steps_per_s", "stages", "leaks"):
+        assert key in summary, key
+    assert 0 < summary["particles"] <= 1000
+    assert summary["steps"] == 5
+    assert summary["sim_time"] > 0
+    assert summary["wall_s"] > 0
+    assert summary["peers"] == 1
+    assert summary["backend"] == "cpu"
+    assert summary["precision"] == "f64"  # the scene's run.precision
+    assert summary["particle_steps_per_s"] > 0
+    assert summary["leaks"] == 0
+    for stage in ("grid", "density", "forces", "integrate"):
+        stats = summary["stages"][stage]
+        for k in STAGE_STATS:
+            assert isinstance(stats[k], float) and stats[k] >= 0, (stage, k)
+        assert stats["mean_s"] > 0, stage
+
+
+def test_final_npz_contract(tiny_run):
+    proc, out = tiny_run
+    assert proc.returncode == 0, proc.stderr
+    n = json.loads((out / "summary.json").read_text())["particles"]
+    with np.load(out / "final.npz") as f:
+        assert set(f.files) == {"id", "x", "v", "rho"}
+        ids, x, v, rho = f["id"], f["x"], f["v"], f["rho"]
+    assert ids.shape == (n,) and np.issubdtype(ids.dtype, np.integer)
+    assert np.all(np.diff(ids) > 0), "ids must be sorted ascending and unique"
+    assert x.shape == (n, 3) and v.shape == (n, 3) and rho.shape == (n,)
+    assert np.isfinite(x).all() and np.isfinite(v).all() and np.isfinite(rho).all()
+    assert (rho > 0).all()
+    # the drop was released at 1 m/s downwards: after 5 steps it still falls
+    assert v[:, 1].min() < -0.5
+
+
+def test_scene_toml_reloads_to_the_same_scene(tiny_run):
+    proc, out = tiny_run
+    assert proc.returncode == 0, proc.stderr
+    written = load_scene(out / "scene.toml")
+    original = load_scene(TINY)
+    assert dataclasses.replace(written, source=original.source) == original
+
+
+# ---------------------------------------------------------------------------------------------
+# In-process runs
+# ---------------------------------------------------------------------------------------------
+
+def test_until_stops_exactly_at_the_requested_time(tmp_path):
+    # Given a run that must stop at T, which is not a whole number of CFL steps
+    T = 1.23e-3
+    out = tmp_path / "until"
+    # When it runs
+    rc = main(["run", TINY, "--until", repr(T), "--out", str(out), "--quiet"])
+    # Then it exits 0 and the simulated time is T, reached in several steps
+    assert rc == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert abs(summary["sim_time"] - T) <= 1e-9 * T
+    assert summary["steps"] > 2
+    assert (out / "final.npz").exists() and (out / "scene.toml").exists()
+
+
+def test_precision_and_set_reach_the_run(tmp_path):
+    out = tmp_path / "f32"
+    rc = main(["run", TINY, "--steps", "2", "--precision", "f32", "--set", "particles.spacing=0.02",
+               "--out", str(out), "--quiet"])
+    assert rc == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["precision"] == "f32" and summary["steps"] == 2
+    assert summary["particles"] < 300  # coarser spacing than the file's 0.0125 (498 particles)
+    with np.load(out / "final.npz") as f:
+        assert f["x"].dtype == np.float32
+    assert load_scene(out / "scene.toml").particles.spacing == 0.02
+
+
+# ---------------------------------------------------------------------------------------------
+# Bad input: exit 2, the key named on stderr, nothing written
+# ---------------------------------------------------------------------------------------------
+
+BAD_RUNS = [
+    ("unknown-key", [TINY, "--set", "sph.kernal=muller"], ["sph.kernal"]),
+    ("unknown-section", [TINY, "--set", "sphh.kernel=muller"], ["sphh"]),
+    ("bad-value", [TINY, "--set", "sph.support=0.5"], ["sph.support", "0.5", "[1, 4]"]),
+    ("bad-choice", [TINY, "--set", "sph.kernel=gaussian"], ["sph.kernel", "gaussian", "wendland_c2"]),
+    ("bad-type", [TINY, "--set", "particles.spacing=fine"], ["particles.spacing", "fine"]),
+    ("bad-override-syntax", [TINY, "--set", "sph.kernel"], ["sph.kernel", "section.key=value"]),
+    ("missing-config", [str(CONFIGS / "no_such_scene.toml")], ["no_such_scene.toml"]),
+    ("peers-2", [TINY, "--peers", "2"], ["--peers 2", "not available"]),
+    ("backend-cuda", [TINY, "--backend", "cuda"], ["--backend cuda", "not available"]),
+    ("record", [TINY, "--record", "x.rrd"], ["--record", "not available"]),
+]
+
+
+@pytest.mark.parametrize("args,fragments", [b[1:] for b in BAD_RUNS], ids=[b[0] for b in BAD_RUNS])
+def test_bad_input_exits_2_names_the_problem_and_writes_nothing(args, fragments, tmp_path, capsys):
+    # Given an output folder that does not exist yet
+    out = tmp_path / "out"
+    # When sph run is given bad input
+    rc = main(["run", *args, "--steps", "1", "--out", str(out), "--quiet"])
+    # Then it exits 2 with a one-line error naming the problem, and writes nothing
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert err.startswith("sph run: error: "), err
+    for frag in fragments:
+        assert frag in err, f"{frag!r} missing from {err!r}"
+    assert "Traceback" not in err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("args,fragments", [
+    (["--steps", "3", "--until", "0.1"], ["--until", "--steps", "not allowed"]),
+    (["--steps", "-1"], ["--steps", "must be >= 0"]),
+    (["--until", "0"], ["--until", "must be > 0"]),
+    (["--precision", "f16"], ["--precision", "f16"]),
+    (["--backend", "opencl"], ["--backend", "opencl"]),
+], ids=["steps-and-until", "negative-steps", "until-zero", "precision-f16", "backend-opencl"])
+def test_bad_options_exit_2_before_anything_runs(args, fragments, tmp_path, capsys):
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as exc:
+        main(["run", TINY, *args, "--out", str(out)])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2
+    for frag in fragments:
+        assert frag in err, f"{frag!r} missing from {err!r}"
+    assert not out.exists()
+
+
+# ---------------------------------------------------------------------------------------------
+# sph scene
+# ---------------------------------------------------------------------------------------------
+
+def test_scene_prints_the_resolved_scene_with_overrides(capsys):
+    # When the dam break is printed with a kernel override
+    rc = main(["scene", DAM_BREAK, "--set", "sph.kernel=muller"])
+    out = capsys.readouterr().out
+    # Then the TOML carries the override and every resolved default, and is itself a valid scene
+    assert rc == 0
+    assert 'kernel = "muller"' in out
+    data = tomllib.loads(out)
+    assert data["sph"]["kernel"] == "muller"
+    assert data["boundary"]["gap"] == 0.25  # a default the file does not set
+    s = scene_from_dict(data)
+    assert s.sph.kernel == "muller" and s.particles.spacing == 0.0125
+
+
+def test_scene_with_bad_override_exits_2(capsys):
+    rc = main(["scene", DAM_BREAK, "--set", "sph.kernel=gaussian"])
+    cap = capsys.readouterr()
+    assert rc == 2
+    assert cap.out == ""
+    assert cap.err.startswith("sph scene: error: ") and "sph.kernel" in cap.err and "gaussian" in cap.err
+
+
+# ---------------------------------------------------------------------------------------------
+# Help
+# ---------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("argv,mentions", [
+    (["--help"], ["run", "bench", "scene", "--verbose"]),
+    (["run", "--help"], ["--steps", "--until", "--out", "--precision", "--set", "--quiet", "--peers",
+                         "--backend", "--threads", "config"]),
+    (["bench", "--help"], ["--sizes", "--precisions", "--threads", "--steps", "--external", "--json"]),
+    (["scene", "--help"], ["--set", "config"]),
+], ids=["sph", "run", "bench", "scene"])
+def test_help_exits_0_and_lists_options(argv, mentions, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    out = capsys.readouterr().out
+    assert exc.value.code == 0
+    for m in mentions:
+        assert m in out, f"{m!r} missing from help of {argv}"
+
+
+def test_no_command_is_a_usage_error(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main([])
+    assert exc.value.code == 2
+    assert "COMMAND" in capsys.readouterr().err
