@@ -103,11 +103,11 @@ def _scan_range(i, lo, hi, x, xi, yi, zi, H2, period, periodic, nbr, count, cap)
         dz = zi - x[j, 2]
         if periodic:
             if period[0] > 0.0:
-                dx -= period[0] * math.floor(dx / period[0] + 0.5)
+                dx -= period[0] * np.rint(dx / period[0])
             if period[1] > 0.0:
-                dy -= period[1] * math.floor(dy / period[1] + 0.5)
+                dy -= period[1] * np.rint(dy / period[1])
             if period[2] > 0.0:
-                dz -= period[2] * math.floor(dz / period[2] + 0.5)
+                dz -= period[2] * np.rint(dz / period[2])
         if dx * dx + dy * dy + dz * dz < H2 and j != i:
             if count < cap:
                 nbr[i, count] = j
