@@ -156,7 +156,7 @@ def add_surface_tension(kernel, periodic, prm, n, x, m, rho, nbr, counts, a):
 @literal_dispatch(2)
 @njit(cache=True, parallel=True, fastmath=FASTMATH)
 def compute_vorticity(kernel, periodic, prm, n, x, v, m, rho, nbr, counts, omega):
-    """omega_i = sum_j m_j / rho_j (v_j - v_i) x grad W_ij.   (vorticity.py)"""
+    """omega_i = sum_j m_j / rho_j grad W_ij x (v_j - v_i).   (vorticity.py)"""
     literally(kernel)
     literally(periodic)
     for i in prange(n):

@@ -2,7 +2,7 @@
 
 Numerical dissipation damps small eddies; confinement puts the lost rotation back:
 
-    omega_i = sum_j m_j / rho_j (v_j - v_i) x grad_i W_ij        (SPH curl of v)
+    omega_i = sum_j m_j / rho_j grad_i W_ij x (v_j - v_i)        (SPH curl of v, eq. 15)
     eta_i   = sum_j m_j / rho_j |omega_j| grad_i W_ij            (gradient of |omega|)
     N_i     = eta_i / |eta_i|,    a_i += eps (N_i x omega_i)
 
@@ -14,8 +14,8 @@ from numba import njit
 
 @njit(cache=True, inline="always")
 def curl_pair(f, vjx, vjy, vjz, gx, gy, gz):
-    """f * (v_ji x grad W) with v_ji = v_j - v_i and grad W = (gx, gy, gz)."""
-    return (f * (vjy * gz - vjz * gy), f * (vjz * gx - vjx * gz), f * (vjx * gy - vjy * gx))
+    """f * (grad W x v_ji) with v_ji = v_j - v_i and grad W = grad_i W_ij = (gx, gy, gz)."""
+    return (f * (gy * vjz - gz * vjy), f * (gz * vjx - gx * vjz), f * (gx * vjy - gy * vjx))
 
 
 @njit(cache=True, inline="always")
