@@ -81,7 +81,7 @@ def run_bench(args) -> int:
             results += _external(dx, args.steps, args.threads)
     _print_ratios(results)
     report = {
-        "date": started.isoformat(timespec="seconds"), "command": "sph " + " ".join(sys.argv[2:]),
+        "date": started.isoformat(timespec="seconds"), "command": "sph " + " ".join(sys.argv[1:]),
         "machine": {"platform": platform.platform(), "cpu": _cpu_name(), "cores": numba.config.NUMBA_NUM_THREADS,
                     "python": platform.python_version(), "numba": numba.__version__},
         "scene": str(scene_path), "results": results,

@@ -147,6 +147,10 @@ def _cmd_run(args) -> int:
         raise UsageError(f"--backend {args.backend}: not available yet; use --backend cpu")
     if args.record is not None:
         raise UsageError("--record: the Rerun viewer is not available yet; run with --no-viewer")
+    if args.threads is not None:
+        import numba
+        if not 1 <= args.threads <= numba.config.NUMBA_NUM_THREADS:
+            raise UsageError(f"--threads {args.threads}: allowed 1..{numba.config.NUMBA_NUM_THREADS} on this machine")
     scene = load_scene(args.config, args.overrides)
     out = args.out if args.out is not None else Path("runs") / scene.scene.name
     if out.exists() and not out.is_dir():
