@@ -5,7 +5,7 @@ import pytest
 from sphcore.scene import scene_from_dict
 from sphcore.solver import Simulation
 
-from conftest import scene
+from conftest import scene, settled_pressure_profile
 
 
 def free_blob(dim, kernel="wendland_c2", viscosity="artificial"):
@@ -97,19 +97,13 @@ def test_hydrostatic_column_settles_to_rho_g_depth():
     # Given still water 0.5 m deep with gravity ramped in over 0.4 s (coarse lattice for speed)
     sim = Simulation(scene("hydrostatic_2d", "particles.spacing=0.02"), "f64")
     # When it runs for 1.2 s
-    while sim.t < 1.2:
-        sim.step()
-    sim.refresh()
+    slope, surface = settled_pressure_profile(sim, 1.2, (0.1, 0.4), (0.06, 0.44))
+    # Then the pressure rises linearly with depth at rho0 g (least-squares slope) with the right level
+    assert -slope == pytest.approx(1000.0 * 9.81, rel=0.05)
+    assert surface == pytest.approx(0.5, abs=0.02)
     s = sim.state
     n = s.n_owned
-    x, y, p = s.x[:n, 0], s.x[:n, 1], s.p[:n]
-    interior = (x > 0.1) & (x < 0.4) & (y > 0.06) & (y < 0.44)
-    # Then the pressure rises linearly with depth at rho0 g (least-squares slope) with the right level
-    slope, intercept = np.polyfit(y[interior], p[interior], 1)
-    rho_g = 1000.0 * 9.81
-    assert -slope == pytest.approx(rho_g, rel=0.05)
-    surface = -intercept / slope
-    assert surface == pytest.approx(0.5, abs=0.02)
+    x, y = s.x[:n, 0], s.x[:n, 1]
     # and the water is nearly at rest, inside the tank
     assert np.abs(s.v[:n]).max() < 0.15
     assert sim.leaks == 0
