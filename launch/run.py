@@ -43,10 +43,10 @@ class Progress:
             return
         info = f"step {step}  t={sim.t:.4g}s  dt={sim.dt:.3g} ({sim.last_limit})  {rate:.3g} particle-steps/s"
         if self.bar is not None:
-            self.bar.n = min(done, self.total)
+            # update() redraws at most every tqdm.mininterval (0.1 s), so small scenes are not slowed
             self.bar.set_postfix_str(f"t={sim.t:.4g}s dt={sim.dt:.2g} ({sim.last_limit}) {rate:.2g} p-steps/s",
                                      refresh=False)
-            self.bar.refresh()
+            self.bar.update(min(done, self.total) - self.bar.n)
         else:
             fraction = min(done / self.total, 1.0) if self.total else 1.0
             due = (step % self.log_every == 0) if self.log_every else fraction >= self.next_mark
