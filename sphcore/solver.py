@@ -12,7 +12,7 @@ import numpy as np
 
 from sphcore import grid as grid_mod
 from sphcore.backends import cpu
-from sphcore.boundaries import build_walls, lattice_sum, table_end
+from sphcore.boundaries import build_walls, lattice_gradient_moment, lattice_sum, table_end
 from sphcore.choices import EOSES, INTEGRATORS, KERNELS, VISCOSITIES, Integrator, Viscosity
 from sphcore.initial import generate_particles
 from sphcore.params import make_params
@@ -48,6 +48,8 @@ class Simulation:
         self.viscosity = VISCOSITIES[sph.viscosity]
         self.integrator = INTEGRATORS[scene.time.integrator]
         s_w, s_g, s_l = kernel_constants(self.kernel, scene.dim, self.H)
+        self.gradient_moment = lattice_gradient_moment(self.kernel, scene.dim, self.H, dx)
+        s_g /= self.gradient_moment  # calibrated kernel gradient (boundaries.lattice_gradient_moment)
 
         self.walls = build_walls(scene, self.kernel, self.H, dtype)
         ids, x, v = generate_particles(scene, self.walls)
@@ -84,6 +86,7 @@ class Simulation:
         self._xsph_dv = np.zeros((self.n_particles if self.use_xsph else 0, 3), dtype=dtype)
         self._omega = np.zeros((self.n_particles if self.use_vorticity else 0, 3), dtype=dtype)
         self._leaked = np.zeros(self.n_particles, dtype=np.int8)
+        self._fill = np.ones(self.n_particles, dtype=dtype)  # wall fill fraction theta (physics/walls.py)
         self._lo = self.grid_lo.astype(dtype)
 
         self.t = 0.0
@@ -120,12 +123,12 @@ class Simulation:
     def _density(self):
         s, w_ = self.state, self.walls
         cpu.compute_density(int(self.kernel), int(self.eos), self.periodic, self.prm_now, s.n_owned, s.x, s.m,
-                            self.grid.nbr, self.grid.counts, w_.kind, w_.data, w_.tables, s.rho, s.p)
+                            self.grid.nbr, self.grid.counts, w_.kind, w_.data, w_.tables, s.rho, s.p, self._fill)
 
     def _forces(self):
         s, w_, g = self.state, self.walls, self.grid
         cpu.compute_acceleration(int(self.kernel), int(self.viscosity), self.periodic, self.prm_now, s.n_owned, s.x,
-                                 s.v, s.m, s.rho, s.p, g.nbr, g.counts, w_.kind, w_.data, w_.tables, s.a)
+                                 s.v, s.m, s.rho, s.p, g.nbr, g.counts, w_.kind, w_.data, w_.tables, self._fill, s.a)
 
     def step(self, dt_cap: float | None = None):
         """Advance one time step; ``dt_cap`` shortens the last step of an --until run."""

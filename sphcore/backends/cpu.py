@@ -28,7 +28,7 @@ from sphcore.physics.pressure import pressure_pair
 from sphcore.physics.surface_tension import colour_gradient_pair, colour_laplacian_pair, surface_tension_factor
 from sphcore.physics.viscosity import artificial_pair, morris_pair, muller_pair
 from sphcore.physics.vorticity import confinement, curl_pair
-from sphcore.physics.walls import signed_distance, wall_terms
+from sphcore.physics.walls import fill_fraction, signed_distance, wall_terms
 from sphcore.physics.xsph import xsph_pair
 
 
@@ -52,8 +52,10 @@ def separation(periodic, x, i, j, prm):
 
 @literal_dispatch(3)
 @njit(cache=True, parallel=True, fastmath=FASTMATH)
-def compute_density(kernel, eos, periodic, prm, n, x, m, nbr, counts, wall_kind, wall_data, wall_tables, rho, p):
-    """rho_i = m_i W(0) + sum_j m_j W_ij + rho0 Phi(d_i);  p_i = EOS(rho_i).   (density.py, eos.py)"""
+def compute_density(kernel, eos, periodic, prm, n, x, m, nbr, counts, wall_kind, wall_data, wall_tables, rho, p,
+                    fill):
+    """rho_i = m_i W(0) + sum_j m_j W_ij + theta_i rho0 Phi(d_i);  p_i = EOS(rho_i); fill_i = theta_i.
+    (density.py, eos.py, walls.py)"""
     literally(kernel)
     literally(eos)
     literally(periodic)
@@ -66,7 +68,9 @@ def compute_density(kernel, eos, periodic, prm, n, x, m, nbr, counts, wall_kind,
             rho_i += density_pair(kernel, m[j], r_ij, prm.H, prm.s_w)
         drho, _, _, _ = wall_terms(kernel, prm, False, wall_kind, wall_data, wall_tables, x[i, 0], x[i, 1], x[i, 2],
                                    0.0 * rho_i, rho_i, 0.0 * rho_i, 0.0 * rho_i, 0.0 * rho_i)
-        rho_i += drho
+        theta = fill_fraction(rho_i, drho, prm.rho0)
+        fill[i] = theta
+        rho_i += theta * drho
         rho[i] = rho_i
         p[i] = pressure(eos, rho_i, prm.rho0, prm.c0, prm.clamp_negative)
 
@@ -74,7 +78,7 @@ def compute_density(kernel, eos, periodic, prm, n, x, m, nbr, counts, wall_kind,
 @literal_dispatch(3)
 @njit(cache=True, parallel=True, fastmath=FASTMATH)
 def compute_acceleration(kernel, viscosity, periodic, prm, n, x, v, m, rho, p, nbr, counts, wall_kind, wall_data,
-                         wall_tables, a):
+                         wall_tables, fill, a):
     """a_i = pressure + viscosity + body force + wall pressure.   (pressure.py, viscosity.py,
     external.py, walls.py)"""
     literally(kernel)
@@ -115,9 +119,9 @@ def compute_acceleration(kernel, viscosity, periodic, prm, n, x, v, m, rho, p, n
                 az += g * (v[i, 2] - v[j, 2])
         _, wx, wy, wz = wall_terms(kernel, prm, True, wall_kind, wall_data, wall_tables, x[i, 0], x[i, 1], x[i, 2],
                                    p_i, rho_i, bx, by, bz)
-        ax += wx
-        ay += wy
-        az += wz
+        ax += fill[i] * wx
+        ay += fill[i] * wy
+        az += fill[i] * wz
         a[i, 0] = ax
         a[i, 1] = ay
         a[i, 2] = az

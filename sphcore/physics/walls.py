@@ -20,6 +20,11 @@ flat wall the sums reduce to tables of d (``sphcore.boundaries.wall_tables``):
     rho_i += rho0 Phi(d)
     a_i   += rho0/rho_i^2 (-2 p_i G0(d) n + rho_i (b_n G1(d) n + G2(d) b_t)),   b_n = b . n, b_t = b - b_n n
 
+Where the fluid side is not full — a free surface meeting a wall, a splash reaching it — there is
+no fluid to continue behind the wall either. The wall terms are therefore scaled by the fill
+fraction theta_i = min(1, rho_fluid_i / (rho0 - rho_wall_i)): the fluid-side density over what a
+full lattice would give there (theta = 1 for the lattice at rest, so nothing changes in the bulk).
+
 Where a particle is near two or three mutually perpendicular walls (edges and corners of a box,
 the rim of a cylinder) the virtual regions overlap; inclusion-exclusion removes the overlap
 (pair sums subtracted, the triple sum added back), each summed directly over its few virtual
@@ -236,3 +241,12 @@ def wall_terms(kernel, prm, want_force, kinds, data, tables, x, y, z, p_i, rho_i
         ay += scale_f * fy
         az += scale_f * fz
     return drho, ax, ay, az
+
+
+@njit(cache=True, inline="always")
+def fill_fraction(rho_fluid, rho_wall, rho0):
+    """theta = min(1, rho_fluid / (rho0 - rho_wall)): how full the fluid side of a wall particle is."""
+    expected = rho0 - rho_wall
+    if rho_wall <= 0.0 or expected <= 0.0:
+        return 1.0 + 0.0 * rho0
+    return min(rho_fluid / expected, 1.0)
