@@ -1,0 +1,163 @@
+"""Domain decomposition on the global grid: blocks of cells, one per peer (seed 000, chapter 3).
+
+The domain's global grid (``sphcore.grid.Grid``: same origin and cell size everywhere) is cut into
+``dims = (px, py, pz)`` blocks along cell boundaries, so every cell belongs to exactly one peer.
+Cells are at least one support radius wide, so for a peer r:
+
+* its *calculation area* is its block of cells;
+* the *incoming zone* (ghosts) is the ring of cells one cell deep around the block — everything a
+  particle of the block can interact with;
+* its *outgoing zone towards peer q* is the set of its own cells inside q's incoming zone
+  (diagonal neighbours included).
+
+Because whole cells are exchanged, a peer's grid holds every cell that any of its particles
+scans, with the same particles in the same (cell, id) order as a single-process run: the sums,
+and so the results, are identical. No networking here: ``nodes/`` moves the bytes.
+"""
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def choose_dims(n_peers: int, ncell, dim: int, layout: str = "auto") -> tuple[int, int, int]:
+    """Peers per axis. ``slabs``: all along the axis with the most cells. ``auto``: the factorisation
+    of n_peers into dim factors whose blocks have the smallest halo (surface) per cell, with at
+    least 2 cells per block along each cut axis."""
+    ncell = np.asarray(ncell, dtype=np.int64)
+    if n_peers < 1:
+        raise ValueError(f"need at least one peer, got {n_peers}")
+    axes = list(range(dim))
+    candidates = []
+    if layout == "slabs":
+        axis = max(axes, key=lambda a: ncell[a])
+        dims = [1, 1, 1]
+        dims[axis] = n_peers
+        candidates = [tuple(dims)]
+    elif layout == "auto":
+        for combo in itertools.product(range(1, n_peers + 1), repeat=dim):
+            if math.prod(combo) == n_peers:
+                candidates.append(tuple(combo) + (1,) * (3 - dim))
+    else:
+        raise ValueError(f"layout must be 'auto' or 'slabs', got {layout!r}")
+    best, best_cost = None, math.inf
+    for dims in candidates:
+        if any(ncell[a] < 2 * dims[a] for a in range(3) if dims[a] > 1):
+            continue
+        size = ncell / np.asarray(dims)
+        surface = sum(2 * math.prod(size[b] for b in range(dim) if b != a) for a in range(dim) if dims[a] > 1)
+        surface += 1e-6 * max(dims)  # ties: prefer the more even split (smaller halo per block)
+        if surface < best_cost:
+            best, best_cost = dims, surface
+    if best is None:
+        raise ValueError(f"{n_peers} peers do not fit a grid of {ncell.tolist()} cells "
+                         f"(each block needs at least 2 cells along every cut axis)")
+    return best
+
+
+@dataclass(frozen=True)
+class Decomposition:
+    """Blocks of grid cells. ``cuts[a]`` (dims[a] + 1,) are the cell indices where blocks start along
+    axis a (cuts[a][0] = 0, cuts[a][-1] = ncell[a]); ``periodic[a]`` wraps the halo across the
+    domain boundary."""
+
+    ncell: tuple
+    dims: tuple
+    cuts: tuple
+    periodic: tuple
+
+    @classmethod
+    def uniform(cls, ncell, dims, periodic=(False, False, False)) -> "Decomposition":
+        cuts = tuple(tuple(int(round(k * ncell[a] / dims[a])) for k in range(dims[a] + 1)) for a in range(3))
+        return cls(tuple(int(n) for n in ncell), tuple(dims), cuts, tuple(bool(p) for p in periodic))
+
+    @classmethod
+    def balanced(cls, ncell, dims, cell_index, periodic=(False, False, False)) -> "Decomposition":
+        """Cuts that give each block row about the same number of particles (cell_index: (n, 3)
+        integer cell coordinates of the particles), axis by axis."""
+        cuts = []
+        for a in range(3):
+            counts = np.bincount(cell_index[:, a], minlength=ncell[a]).astype(np.float64)
+            cum = np.concatenate([[0.0], np.cumsum(counts)])
+            c = [0]
+            for k in range(1, dims[a]):
+                target = cum[-1] * k / dims[a]
+                cut = int(np.searchsorted(cum, target))
+                cut = min(max(cut, c[-1] + 2), ncell[a] - 2 * (dims[a] - k))  # >= 2 cells per block
+                c.append(cut)
+            c.append(int(ncell[a]))
+            cuts.append(tuple(c))
+        return cls(tuple(int(n) for n in ncell), tuple(dims), tuple(cuts), tuple(bool(p) for p in periodic))
+
+    @property
+    def n_peers(self) -> int:
+        return math.prod(self.dims)
+
+    def block_of(self, rank: int) -> tuple[int, int, int]:
+        px, py, _ = self.dims
+        return rank % px, (rank // px) % py, rank // (px * py)
+
+    def rank_of(self, bx: int, by: int, bz: int) -> int:
+        px, py, _ = self.dims
+        return (bz * py + by) * px + bx
+
+    def cell_box(self, rank: int) -> tuple[np.ndarray, np.ndarray]:
+        """[lo, hi) cell indices of the block of ``rank``."""
+        b = self.block_of(rank)
+        lo = np.array([self.cuts[a][b[a]] for a in range(3)])
+        hi = np.array([self.cuts[a][b[a] + 1] for a in range(3)])
+        return lo, hi
+
+    def owner(self, cell_index: np.ndarray) -> np.ndarray:
+        """Rank owning each cell, for (n, 3) integer cell coordinates."""
+        block = [np.searchsorted(np.asarray(self.cuts[a]), cell_index[:, a], side="right") - 1 for a in range(3)]
+        px, py, _ = self.dims
+        return (block[2] * py + block[1]) * px + block[0]
+
+    def _gap(self, cells: np.ndarray, rank: int) -> np.ndarray:
+        """Chebyshev distance in cells from each cell to the block of ``rank`` (0 inside), with
+        periodic wrap."""
+        lo, hi = self.cell_box(rank)
+        gap = np.zeros(len(cells), dtype=np.int64)
+        for a in range(3):
+            c = cells[:, a]
+            d = np.maximum(lo[a] - c, 0) + np.maximum(c - (hi[a] - 1), 0)
+            if self.periodic[a]:
+                n = self.ncell[a]
+                d = np.minimum(d, np.maximum(lo[a] - (c - n), 0) + np.maximum((c - n) - (hi[a] - 1), 0))
+                d = np.minimum(d, np.maximum(lo[a] - (c + n), 0) + np.maximum((c + n) - (hi[a] - 1), 0))
+            gap = np.maximum(gap, d)
+        return gap
+
+    def in_halo(self, cells: np.ndarray, rank: int) -> np.ndarray:
+        """Mask of cells in the incoming zone of ``rank`` (one cell around its block, not inside)."""
+        return self._gap(cells, rank) == 1
+
+    def neighbours(self, rank: int) -> list[int]:
+        """Peers whose blocks touch the incoming zone of ``rank`` (diagonals included), ascending."""
+        out = []
+        lo, hi = self.cell_box(rank)
+        for q in range(self.n_peers):
+            if q == rank:
+                continue
+            qlo, qhi = self.cell_box(q)
+            # q's block corners are enough to test the Chebyshev gap between two boxes
+            touch = True
+            for a in range(3):
+                d = max(lo[a] - qhi[a] + 1, qlo[a] - hi[a] + 1, 0)
+                if self.periodic[a]:
+                    n = self.ncell[a]
+                    d = min(d, max(lo[a] - (qhi[a] - n) + 1, (qlo[a] - n) - hi[a] + 1, 0),
+                            max(lo[a] - (qhi[a] + n) + 1, (qlo[a] + n) - hi[a] + 1, 0))
+                if d > 1:
+                    touch = False
+            if touch:
+                out.append(q)
+        return out
+
+    def outgoing(self, cells: np.ndarray, rank: int, to: int) -> np.ndarray:
+        """Mask of the particles of ``rank`` (their (n, 3) cells) that peer ``to`` needs as ghosts."""
+        return self.in_halo(cells, to)
