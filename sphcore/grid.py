@@ -32,13 +32,16 @@ class GridOverflow(RuntimeError):
 
 
 @njit(cache=True, parallel=True)
-def compute_cell_keys(x, origin, inv_cell, ncell, keys):
+def compute_cell_keys(x, n_owned, origin, inv_cell, ncell, keys):
+    """keys[i] = cell key of row i, plus ncells for ghost rows (i >= n_owned): sorting by key puts
+    owned rows first and ghost rows after, each in (cell, id) order."""
     nx, ny, nz = ncell[0], ncell[1], ncell[2]
+    ncells = nx * ny * nz
     for i in prange(x.shape[0]):
         ix = min(max(int(math.floor((x[i, 0] - origin[0]) * inv_cell[0])), 0), nx - 1)
         iy = min(max(int(math.floor((x[i, 1] - origin[1]) * inv_cell[1])), 0), ny - 1)
         iz = min(max(int(math.floor((x[i, 2] - origin[2]) * inv_cell[2])), 0), nz - 1)
-        keys[i] = (iz * ny + iy) * nx + ix
+        keys[i] = (iz * ny + iy) * nx + ix + (ncells if i >= n_owned else 0)
 
 
 @njit(cache=True)
@@ -73,10 +76,30 @@ def _sort_cells_by_id(cell_start, perm, ids):
             perm[j + 1] = pk
 
 
-def counting_sort(keys, ids, cell_start, perm):
-    """Permutation ordering rows by (cell key, id); fills ``cell_start`` (ncells + 1)."""
-    _scatter_by_key(keys, cell_start, perm)
-    _sort_cells_by_id(cell_start, perm, ids)
+def counting_sort(keys, ids, bin_start, perm):
+    """Permutation ordering rows by (key, id); fills ``bin_start`` (nbins + 1)."""
+    _scatter_by_key(keys, bin_start, perm)
+    _sort_cells_by_id(bin_start, perm, ids)
+
+
+@njit(cache=True)
+def _cell_ranges(bin_start, ncells, cell_begin, cell_end):
+    """Row range of every cell from the owned bins [0, ncells) or the ghost bins [ncells, 2 ncells).
+    A cell holds owned or ghost rows, never both (cuts lie on cell faces); returns the number of
+    cells that break that rule (0 unless a migration was missed)."""
+    mixed = 0
+    for c in range(ncells):
+        own_lo, own_hi = bin_start[c], bin_start[c + 1]
+        gh_lo, gh_hi = bin_start[ncells + c], bin_start[ncells + c + 1]
+        if gh_hi > gh_lo:
+            cell_begin[c] = gh_lo
+            cell_end[c] = gh_hi
+            if own_hi > own_lo:
+                mixed += 1
+        else:  # owned or empty: empty cells keep their place in the owned sequence (contiguous rows)
+            cell_begin[c] = own_lo
+            cell_end[c] = own_hi
+    return mixed
 
 
 @njit(cache=True, parallel=True)
@@ -130,7 +153,8 @@ def _face_gap2(offset, xi, lo_face, hi_face):
 
 @literal_dispatch(1)
 @njit(cache=True, parallel=True)
-def _build_neighbours(periodic, x, n_query, cell_start, origin, cell, inv_cell, ncell, period, H2, nbr, counts):
+def _build_neighbours(periodic, x, n_query, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell, period,
+                      H2, nbr, counts):
     """Neighbour lists of rows 0..n_query-1. Neighbour cells are visited in a fixed order (z, y, x);
     a cell (or a whole row of cells) farther than H from the particle is skipped, which removes
     about a quarter of the candidates."""
@@ -170,17 +194,21 @@ def _build_neighbours(periodic, x, n_query, cell_start, origin, cell, inv_cell, 
                 row = (cz * ny + cy) * nx
                 use_left = gyz + gx_left < H2
                 use_right = gyz + gx_right < H2
-                if not px or (ix >= 1 and ix + 1 < nx):
+                if contiguous and (not px or (ix >= 1 and ix + 1 < nx)):
                     lo = max(ix - 1, 0) if use_left else ix
                     hi = min(ix + 1, nx - 1) if use_right else ix
-                    count = _scan_range(i, cell_start[row + lo], cell_start[row + hi + 1], x, xi, yi, zi,
+                    count = _scan_range(i, cell_begin[row + lo], cell_end[row + hi], x, xi, yi, zi,
                                         H2, period, periodic, nbr, count, cap)
                 else:
                     for dx in range(-1, 2):
                         if (dx < 0 and not use_left) or (dx > 0 and not use_right):
                             continue
-                        cx = (ix + dx + nx) % nx
-                        count = _scan_range(i, cell_start[row + cx], cell_start[row + cx + 1], x, xi, yi,
+                        cx = ix + dx
+                        if cx < 0 or cx >= nx:
+                            if not px:
+                                continue
+                            cx = (cx + nx) % nx
+                        count = _scan_range(i, cell_begin[row + cx], cell_end[row + cx], x, xi, yi,
                                             zi, H2, period, periodic, nbr, count, cap)
         counts[i] = count
 
@@ -189,8 +217,9 @@ class Grid:
     """Global uniform grid plus the per-step sort and neighbour list of one process.
 
     origin (3,) m and cell (3,) m define the cells; ncell (3,) their number per axis; period (3,) is
-    the period length along periodic axes and 0 elsewhere. ``cell_start`` (ncells + 1,) int64 holds
-    the first row of every cell after ``bin``; ``nbr`` (n, capacity) int32 and ``counts`` (n,)
+    the period length along periodic axes and 0 elsewhere. After ``bin``, ``cell_begin`` and
+    ``cell_end`` (ncells,) int64 hold the rows of every cell: owned rows (the first n_owned) and
+    ghost rows (after them) are each sorted by (cell, id); ``nbr`` (n, capacity) int32 and ``counts`` (n,)
     int32 the neighbour list (self excluded), grown automatically when a particle has more
     neighbours than the capacity.
     """
@@ -222,7 +251,10 @@ class Grid:
         self.periodic = bool(np.any(period > 0))
         self.H2 = self.dtype.type(H * H)
         self.ncells = int(np.prod(self.ncell))
-        self.cell_start = np.zeros(self.ncells + 1, dtype=np.int64)
+        self.bin_start = np.zeros(2 * self.ncells + 1, dtype=np.int64)
+        self.cell_begin = np.zeros(self.ncells, dtype=np.int64)
+        self.cell_end = np.zeros(self.ncells, dtype=np.int64)
+        self.contiguous = True
         self.capacity = capacity
         self.nbr = np.zeros((0, capacity), dtype=np.int32)
         self.counts = np.zeros(0, dtype=np.int32)
@@ -236,11 +268,16 @@ class Grid:
             self._perm = np.empty(n, dtype=np.int64)
 
     def sort(self, state, arrays=("id", "x", "v", "m")):
-        """Reorder the rows of ``state`` (the named arrays and state.extra) by (cell, id)."""
+        """Reorder the rows of ``state`` (the named arrays and state.extra) by (cell, id): owned rows
+        first, then ghost rows, each sorted."""
         n = state.n
         self._ensure(n)
-        compute_cell_keys(state.x, self.origin, self.inv_cell, self.ncell, self._keys)
-        counting_sort(self._keys, state.id, self.cell_start, self._perm)
+        compute_cell_keys(state.x, state.n_owned, self.origin, self.inv_cell, self.ncell, self._keys)
+        counting_sort(self._keys, state.id, self.bin_start, self._perm)
+        mixed = _cell_ranges(self.bin_start, self.ncells, self.cell_begin, self.cell_end)
+        if mixed:
+            raise RuntimeError(f"{mixed} grid cells hold both owned and ghost particles: a migration was missed")
+        self.contiguous = state.n_owned == n
         for name in arrays:
             setattr(state, name, self._gather(name, getattr(state, name)))
         for name, arr in state.extra.items():
@@ -263,8 +300,9 @@ class Grid:
             self.nbr = np.empty((n_query, self.capacity), dtype=np.int32)
             self.counts = np.empty(n_query, dtype=np.int32)
         while True:
-            _build_neighbours(int(self.periodic), x, n_query, self.cell_start, self.origin, self.cell,
-                              self.inv_cell, self.ncell, self.period, self.H2, self.nbr, self.counts)
+            _build_neighbours(int(self.periodic), x, n_query, self.contiguous, self.cell_begin, self.cell_end,
+                              self.origin, self.cell, self.inv_cell, self.ncell, self.period, self.H2, self.nbr,
+                              self.counts)
             most = int(self.counts[:n_query].max()) if n_query else 0
             if most <= self.capacity:
                 return most

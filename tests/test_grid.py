@@ -115,3 +115,40 @@ def test_capacity_grows_for_crowded_particles():
 def test_periodic_axis_needs_three_cells():
     with pytest.raises(ValueError, match="at least 3 support radii"):
         Grid(np.zeros(3), np.array([0.25, 1.0, 1.0]), 0.1, (True, False, False), np.float64)
+
+
+@pytest.mark.parametrize("dims,periodic", [((2, 1, 1), (False, False, False)), ((2, 2, 1), (True, False, False))])
+def test_a_peer_with_ghost_rows_sees_the_same_neighbours_in_the_same_order(dims, periodic):
+    # Given random particles, one global grid, and a decomposition into blocks of cells
+    from sphcore.decomposition import Decomposition
+    rng = np.random.default_rng(7)
+    L = np.array([1.2, 0.9, 0.6])
+    H = 0.15
+    lo, hi = np.zeros(3), L.copy()
+    for d in range(3):
+        if not periodic[d]:
+            lo[d] -= H
+            hi[d] += H
+    x = rng.uniform(0, L, size=(800, 3))
+    ids = rng.permutation(800).astype(np.int64)
+    whole = ParticleState.create(ids, x, np.zeros((800, 3)), np.ones(800), np.float64)
+    g_all = Grid(lo, hi, H, periodic, np.float64)
+    g_all.bin(whole)
+    reference = {int(whole.id[i]): whole.id[g_all.nbr[i, : g_all.counts[i]]].tolist() for i in range(800)}
+    cells = np.clip(np.floor((x - g_all.origin) * g_all.inv_cell).astype(int), 0, g_all.ncell - 1)
+    dec = Decomposition.uniform(tuple(g_all.ncell), dims, periodic)
+    owner = dec.owner(cells)
+    for r in range(dec.n_peers):
+        # When a peer holds its own particles first and its ghosts (its halo cells) after them
+        own = np.nonzero(owner == r)[0]
+        ghost = np.nonzero(dec.in_halo(cells, r))[0]
+        rows = np.concatenate([own, rng.permutation(ghost)])
+        peer = ParticleState.create(ids[rows], x[rows], np.zeros((len(rows), 3)), np.ones(len(rows)), np.float64)
+        peer.n_owned = len(own)
+        g = Grid(lo, hi, H, periodic, np.float64)
+        g.bin(peer)
+        # Then owned rows come first and every owned particle has the single-process neighbours, in order
+        assert set(peer.id[: peer.n_owned].tolist()) == set(ids[own].tolist())
+        for i in range(peer.n_owned):
+            got = peer.id[g.nbr[i, : g.counts[i]]].tolist()
+            assert got == reference[int(peer.id[i])]
