@@ -135,7 +135,7 @@ def make_summary(sim: Simulation, scene: Scene, wall_loop: float, steps_in_loop:
         "stages": stages,
         "dt": {"last": sim.dt, "binding_limit_steps": limits},
         "neighbours": {"mean": float(counts.mean()) if counts.size else 0.0,
-                       "max": int(counts.max()) if counts.size else 0},
+                       "max": int(counts.max()) if counts.size else 0, "max_over_run": sim.max_neighbours},
         "leaks": sim.leaks,
         "max_compression": sim.max_compression,
         "kinetic_energy": sim.kinetic_energy(),

@@ -54,7 +54,7 @@ def _estimate_count(block, scene: Scene, dx: float) -> float:
     return (math.pi * block.radius**2 if scene.dim == 2 else 4.0 / 3.0 * math.pi * block.radius**3) / dx**scene.dim
 
 
-def generate_particles(scene: Scene, walls: Walls, periodic_lo=None, periodic_hi=None):
+def generate_particles(scene: Scene, walls: Walls):
     """Return (ids (n,), x (n,3), v (n,3)) in float64; raise SceneError for impossible blocks."""
     dx = scene.particles.spacing
     limit = scene.particles.max_particles

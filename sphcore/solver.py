@@ -95,7 +95,6 @@ class Simulation:
         self.dt = 0.0
         self.leaks = 0
         self.max_neighbours = 0
-        self.mean_neighbours = 0.0
         self.max_compression = 0.0
         self.limit_counts = {name: 0 for name in LIMITS}
         self.last_limit = ""

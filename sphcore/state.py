@@ -18,16 +18,13 @@ rho        (n,)      float    density (kg/m^3)
 p          (n,)      float    pressure (Pa)
 =========  ========  =======  ==========================================================
 
-Optional terms add their own arrays (``extra``) only when the scene enables them, e.g.
-``xsph_dv`` (n, 3) for XSPH or ``omega`` (n, 3) for vorticity confinement.
+``extra`` holds further per-particle arrays that must follow the particles when rows are
+reordered (the grid reorders them with the rest). Per-step scratch of optional terms (the XSPH
+correction, the vorticity) lives in the solver instead, since it is recomputed every step.
 """
 from dataclasses import dataclass, field
 
 import numpy as np
-
-#: fields that persist from step to step and follow particles when rows are reordered
-PERSISTENT = ("id", "x", "v", "m")
-
 
 @dataclass
 class ParticleState:
@@ -63,20 +60,3 @@ class ParticleState:
     @property
     def dtype(self):
         return self.x.dtype
-
-    def add_extra(self, name: str, shape_tail=(), dtype=None) -> np.ndarray:
-        """Allocate (once) a per-particle array for an optional term."""
-        if name not in self.extra:
-            self.extra[name] = np.zeros((self.n, *shape_tail), dtype=dtype or self.dtype)
-        return self.extra[name]
-
-    def sorted_by_id(self) -> dict:
-        """Owned rows as a dict of arrays sorted by id (the final.npz contract)."""
-        k = self.n_owned
-        order = np.argsort(self.id[:k], kind="stable")
-        return {
-            "id": self.id[:k][order],
-            "x": self.x[:k][order],
-            "v": self.v[:k][order],
-            "rho": self.rho[:k][order],
-        }
