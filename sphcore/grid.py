@@ -278,6 +278,7 @@ class Grid:
         if mixed:
             raise RuntimeError(f"{mixed} grid cells hold both owned and ghost particles: a migration was missed")
         self.contiguous = state.n_owned == n
+        self.last_permutation = self._perm[:n]  # row k of the sorted state came from row perm[k]
         for name in arrays:
             setattr(state, name, self._gather(name, getattr(state, name)))
         for name, arr in state.extra.items():

@@ -14,6 +14,7 @@ from sphcore import grid as grid_mod
 from sphcore.backends import cpu
 from sphcore.boundaries import build_walls, lattice_gradient_moment, lattice_sum, table_end
 from sphcore.choices import EOSES, INTEGRATORS, KERNELS, VISCOSITIES, Integrator, Viscosity
+from sphcore.halo import NULL_HALO
 from sphcore.initial import generate_particles
 from sphcore.params import make_params
 from sphcore.physics.external import ramp_factor
@@ -83,10 +84,7 @@ class Simulation:
         self.use_xsph = scene.terms.xsph > 0.0
         self.use_surface_tension = scene.terms.surface_tension > 0.0
         self.use_vorticity = scene.terms.vorticity_confinement > 0.0
-        self._xsph_dv = np.zeros((self.n_particles if self.use_xsph else 0, 3), dtype=dtype)
-        self._omega = np.zeros((self.n_particles if self.use_vorticity else 0, 3), dtype=dtype)
-        self._leaked = np.zeros(self.n_particles, dtype=np.int8)
-        self._fill = np.ones(self.n_particles, dtype=dtype)  # wall fill fraction theta (physics/walls.py)
+        self._resize_scratch(self.n_particles)
         self._lo = self.grid_lo.astype(dtype)
 
         self.t = 0.0
@@ -100,6 +98,17 @@ class Simulation:
         self.last_limit = ""
         self.prm_now = self.prm
         self.timers = StageTimers()
+
+    def _resize_scratch(self, n: int):
+        """Per-step work arrays for n rows (owned + ghosts); reallocated only when n changes."""
+        if getattr(self, "_scratch_n", None) == n:
+            return
+        dtype = self.dtype
+        self._xsph_dv = np.zeros((n if self.use_xsph else 0, 3), dtype=dtype)
+        self._omega = np.zeros((n if self.use_vorticity else 0, 3), dtype=dtype)
+        self._leaked = np.zeros(n, dtype=np.int8)
+        self._fill = np.ones(n, dtype=dtype)  # wall fill fraction theta (physics/walls.py)
+        self._scratch_n = n
 
     # -- stages --------------------------------------------------------------------------------
     def _ramped_params(self):
@@ -130,13 +139,27 @@ class Simulation:
                                  s.v, s.m, s.rho, s.p, g.nbr, g.counts, w_.kind, w_.data, w_.tables, self._fill, s.a)
 
     def step(self, dt_cap: float | None = None):
-        """Advance one time step; ``dt_cap`` shortens the last step of an --until run."""
-        s, g, k, per, t = self.state, self.grid, int(self.kernel), self.periodic, self.timers
+        """Advance one time step of a single-process run; ``dt_cap`` shortens the last step of an
+        --until run."""
+        for _ in self.stages(NULL_HALO, dt_cap):
+            raise RuntimeError("a single-process step waited for a message")
+        return self.dt
+
+    def stages(self, halo, dt_cap: float | None = None):
+        """The one place that orders a step, as a generator: it yields only while ``halo`` waits for
+        messages from other peers (never for a single process, whose halo is NULL_HALO), so the same
+        ordered step runs in one process, in a peer process, or in an in-process cluster."""
+        s, t = self.state, self.timers
+        k, per = int(self.kernel), self.periodic
         prm = self._ramped_params()
+        yield from halo.exchange_positions(self)                   # migrants; ghosts' id, x, v, m (exchange 1)
+        s = self.state
+        g = self.grid
         with t("grid"):
             self._neighbours()                                     # x                -> order, neighbour lists
         with t("density"):
             self._density()                                        # x, m             -> rho, p
+        yield from halo.exchange_fields(self)                      # ghosts' rho, p   (exchange 2)
         with t("forces"):
             self._forces()                                         # x, v, rho, p     -> a
         if self.use_surface_tension:
@@ -151,7 +174,9 @@ class Simulation:
             with t("xsph"):                                        # x, v, rho        -> xsph_dv
                 cpu.compute_xsph(k, per, prm, s.n_owned, s.x, s.v, s.m, s.rho, g.nbr, g.counts, self._xsph_dv)
         with t("timestep"):
-            dt = self._choose_dt(dt_cap)                           # v, a, rho        -> dt (+ health check)
+            stats = cpu.step_statistics(s.n_owned, s.x, s.v, s.a, s.rho, self.prm.rho0)
+        stats = yield from halo.reduce_max(self, stats)            # global max |v|, |a|, compression
+        dt = self._choose_dt(dt_cap, stats)                        # -> dt (+ health check)
         with t("integrate"):                                       # a                -> v, x; walls, periodic
             cpu.integrate(int(self.integrator), int(self.use_xsph), s.n_owned, s.x, s.v, s.a, self._xsph_dv,
                           self.dtype.type(dt), self.dtype.type(self.dt_prev))
@@ -162,11 +187,9 @@ class Simulation:
         self.dt = dt
         self.t += dt
         self.step_index += 1
-        return dt
 
-    def _choose_dt(self, dt_cap):
-        s = self.state
-        vmax2, amax2, dev, bad = cpu.step_statistics(s.n_owned, s.x, s.v, s.a, s.rho, self.prm.rho0)
+    def _choose_dt(self, dt_cap, stats):
+        vmax2, amax2, dev, bad = stats
         if bad:
             self._fail("NaN or Inf in position, velocity, acceleration or density")
         self.max_compression = max(self.max_compression, float(dev))
@@ -199,10 +222,21 @@ class Simulation:
     def refresh(self):
         """Recompute neighbours, density and pressure (and a) for the current positions, so that
         outputs are consistent; for leapfrog returns velocities synchronised to the full step."""
+        for _ in self.refresh_stages(NULL_HALO):
+            raise RuntimeError("a single-process refresh waited for a message")
+        return self.synchronised_velocity()
+
+    def refresh_stages(self, halo):
+        """refresh() as a generator over a halo (see stages)."""
         self._ramped_params()
+        yield from halo.exchange_positions(self)
         self._neighbours()
         self._density()
+        yield from halo.exchange_fields(self)
         self._forces()
+
+    def synchronised_velocity(self):
+        """Owned rows' velocity at the full step (leapfrog stores half-step velocities)."""
         s = self.state
         if self.integrator == Integrator.LEAPFROG:
             return s.v + 0.5 * self.dt_prev * s.a
@@ -214,6 +248,12 @@ class Simulation:
         s = self.state
         order = np.argsort(s.id[: s.n_owned], kind="stable")
         return {"id": s.id[order], "x": s.x[order], "v": v[order], "rho": s.rho[order]}
+
+    def owned_arrays(self) -> dict:
+        """id, x, v (synchronised), rho of the owned rows, in row order (after a refresh)."""
+        s = self.state
+        n = s.n_owned
+        return {"id": s.id[:n], "x": s.x[:n], "v": self.synchronised_velocity()[:n], "rho": s.rho[:n]}
 
     def kinetic_energy(self) -> float:
         s = self.state
