@@ -183,8 +183,8 @@ def lattice_gradient_moment(kernel: Kernel, dim: int, H: float, dx: float) -> fl
     V = m / rho0 = 1 / S of the lattice-normalised mass (lattice_sum).
 
     For the continuous kernel M = 1 (integration by parts); on a lattice with a support of only 2-3
-    spacings it is not: 0.93 for Wendland C2 at H = 2.3 dx in 2D, so the SPH pressure gradient would
-    be 7 % weak and a resting column would need a 7 % too steep pressure profile. Dividing the
+    spacings it is not: 0.947 for Wendland C2 at H = 2.3 dx in 2D, so the SPH pressure gradient would
+    be 5 % weak and a resting column would need a 5.6 % too steep pressure profile. Dividing the
     gradient constant by M makes sum_j V_j x_ij (x) grad W_ij = I hold exactly on the initial
     lattice (a constant kernel-gradient correction, the simplest form of Bonet & Lok 1999); being a
     constant factor it keeps every pair force antisymmetric.

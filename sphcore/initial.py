@@ -7,7 +7,8 @@ peer of a distributed run generate only its own share.
 Lattice points lie at ``min + (k + 1/2) dx`` so that a block touching a wall starts half a spacing
 from it. Points closer than half a spacing to any wall (outside the container, inside an obstacle)
 are carved away. Masses make the density of a full lattice equal rho0 for the chosen kernel:
-m = rho0 / sum_j W(|x_j|) over an infinite lattice, so a scene starts at rest density.
+m = rho0 / sum_j W(|x_j|) over an infinite lattice (boundaries.lattice_sum, applied by the
+solver), so a scene starts at rest density.
 """
 from __future__ import annotations
 
@@ -15,14 +16,9 @@ import math
 
 import numpy as np
 
-from sphcore.boundaries import Walls, container_frame, lattice_sum
+from sphcore.boundaries import Walls, container_frame
 from sphcore.physics.walls import min_wall_distance
 from sphcore.scene import Scene, SceneError
-
-
-def lattice_mass(kernel, dim: int, dx: float, H: float, rho0: float) -> float:
-    """m such that sum_j m W(x_j) = rho0 on an infinite cubic lattice of spacing dx."""
-    return rho0 / lattice_sum(kernel, dim, H, dx)
 
 
 def _block_points(block, scene: Scene, dx: float) -> np.ndarray:
