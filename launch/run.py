@@ -1,7 +1,8 @@
 """``sph run``: run a scene in this process and write the contract outputs.
 
-Single-process CPU runs live here; multi-peer runs (--peers N) and the viewer arrive with the
-distributed and viewer issues (#3, #4) and reuse the same outputs.
+``run_scene`` runs a scene in this process; ``advance`` is the stepping loop (progress, timings)
+that a peer process (nodes/peer.py) runs too, over its halo; ``make_summary`` and ``write_outputs``
+produce the contract outputs for both.
 """
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ import numpy as np
 from sphcore import __version__
 from sphcore.output import write_final, write_scene, write_summary
 from sphcore.scene import Scene
+from sphcore.halo import NULL_HALO
 from sphcore.solver import Simulation
 
 log = logging.getLogger("sph.run")
@@ -69,13 +71,36 @@ def run_scene(scene: Scene, out: Path, precision: str | None, steps: int | None,
     t_setup = time.perf_counter() - t_start
     log.info("%s: %d particles, %s, %d numba threads", scene.scene.name, sim.n_particles, sim.precision,
              numba.get_num_threads())
+    loop = advance(sim, NULL_HALO, scene, steps, until, progress)
+    final = sim.final_arrays()
+    summary = make_summary(sim, scene, loop, t_setup, time.perf_counter() - t_start)
+    write_outputs(out, scene, sim.precision, final, summary)
+    return summary
 
-    # The first step compiles (or loads from numba's on-disk cache) every stage; it is timed apart
-    # from the stepping loop so that particle_steps_per_s measures stepping only.
+
+def write_outputs(out: Path, scene: Scene, precision: str, final: dict, summary: dict):
+    out.mkdir(parents=True, exist_ok=True)
+    resolved = scene.to_dict()
+    resolved["run"]["precision"] = precision  # what ran, --precision included
+    write_scene(out / "scene.toml", resolved)
+    write_final(out / "final.npz", final)
+    write_summary(out / "summary.json", summary)
+
+
+def advance(sim: Simulation, halo, scene: Scene, steps: int | None, until: float | None, progress: bool,
+            on_step=None) -> dict:
+    """Step ``sim`` (over ``halo``) for ``steps`` steps or until simulated time ``until`` (else the
+    scene's time.steps); ``on_step(seconds)`` is called after each timed step. Returns the loop
+    timings: the first step (numba compilation or cache load) is timed apart from the loop, so
+    that particle-steps/s measures stepping only."""
     target_steps = steps if steps is not None else (None if until is not None else scene.time.steps)
+
+    def cap():
+        return (until - sim.t) if until is not None else None
+
     t0 = time.perf_counter()
     if target_steps != 0 and (until is None or sim.t < until):
-        sim.step(dt_cap=(until - sim.t) if until is not None else None)
+        sim.step(cap(), halo)
     t_first = time.perf_counter() - t0
     sim.timers.reset()
     steps_in_loop = 0
@@ -88,29 +113,20 @@ def run_scene(scene: Scene, out: Path, precision: str | None, steps: int | None,
                 break
             if until is not None and sim.t >= until * (1 - 1e-12):
                 break
-            sim.step(dt_cap=(until - sim.t) if until is not None else None)
+            t_step = time.perf_counter()
+            sim.step(cap(), halo)
+            now = time.perf_counter()
+            if on_step is not None:
+                on_step(now - t_step)
             steps_in_loop += 1
-            elapsed = time.perf_counter() - t_loop
-            rate = sim.n_particles * steps_in_loop / elapsed if elapsed > 0 else 0.0
+            rate = sim.n_particles * steps_in_loop / (now - t_loop)
             bar.update(sim.step_index if target_steps is not None else sim.t, sim.step_index, sim, rate)
     finally:
         bar.close()
-    wall_loop = time.perf_counter() - t_loop
-
-    final = sim.final_arrays()
-    summary = make_summary(sim, scene, wall_loop, steps_in_loop, t_setup, t_first,
-                           time.perf_counter() - t_start)
-    out.mkdir(parents=True, exist_ok=True)
-    resolved = scene.to_dict()
-    resolved["run"]["precision"] = sim.precision  # what ran, --precision included
-    write_scene(out / "scene.toml", resolved)
-    write_final(out / "final.npz", final)
-    write_summary(out / "summary.json", summary)
-    return summary
+    return {"steps": steps_in_loop, "wall_s": time.perf_counter() - t_loop, "first_step_s": t_first}
 
 
-def make_summary(sim: Simulation, scene: Scene, wall_loop: float, steps_in_loop: int, t_setup: float,
-                 t_first: float, wall_total: float) -> dict:
+def make_summary(sim: Simulation, scene: Scene, loop: dict, t_setup: float, wall_total: float) -> dict:
     stages = sim.timers.summary()
     counts = sim.grid.counts[: sim.state.n_owned]
     limits = {k: v for k, v in sim.limit_counts.items() if v}
@@ -127,10 +143,10 @@ def make_summary(sim: Simulation, scene: Scene, wall_loop: float, steps_in_loop:
         "precision": sim.precision,
         "threads": numba.get_num_threads(),
         "dim": scene.dim,
-        "particle_steps_per_s": (sim.n_particles * steps_in_loop / wall_loop) if wall_loop > 0 else None,
-        "loop": {"steps": steps_in_loop, "wall_s": wall_loop,
+        "particle_steps_per_s": (sim.n_particles * loop["steps"] / loop["wall_s"]) if loop["wall_s"] > 0 else None,
+        "loop": {"steps": loop["steps"], "wall_s": loop["wall_s"],
                  "note": "stepping loop only: excludes set-up and the first (compiling) step"},
-        "startup": {"setup_s": t_setup, "first_step_s": t_first,
+        "startup": {"setup_s": t_setup, "first_step_s": loop["first_step_s"],
                     "note": "first_step_s includes numba compilation, or loading it from the on-disk cache"},
         "stages": stages,
         "dt": {"last": sim.dt, "binding_limit_steps": limits},

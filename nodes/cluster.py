@@ -6,10 +6,12 @@ tests to check that N peers reproduce a single-process run bit for bit.
 """
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
+from nodes.peer import decomposition_for, take_block
 from nodes.transport import InProcessNetwork
-from sphcore.decomposition import Decomposition, choose_dims
 from sphcore.halo import PeerHalo
 from sphcore.solver import Simulation
 
@@ -34,28 +36,24 @@ def _drive(generators, max_rounds: int = 100):
 
 
 class InProcessCluster:
-    """``n_peers`` peers of ``scene``, each owning a block of the global grid."""
+    """``n_peers`` peers of ``scene``, each owning a block of the global grid (``dims`` overrides the
+    scene's decomposition.dims)."""
 
-    def __init__(self, scene, n_peers: int, precision: str = "f64", layout: str = "auto", dims=None):
+    def __init__(self, scene, n_peers: int, precision: str = "f64", dims=None):
+        if dims is not None:
+            scene = dataclasses.replace(scene, decomposition=dataclasses.replace(scene.decomposition,
+                                                                                 dims=tuple(dims)))
         self.network = InProcessNetwork()
         self.peers = []
         self.halos = []
         probe = Simulation(scene, precision)
-        grid = probe.grid
-        dims = dims or choose_dims(n_peers, grid.ncell, scene.dim, layout)
-        periodic = tuple(bool(p > 0) for p in grid.period)
-        self.dec = Decomposition.uniform(tuple(int(n) for n in grid.ncell), dims, periodic)
+        self.dec = decomposition_for(scene, probe.grid, n_peers)
         for rank in range(self.dec.n_peers):
             sim = probe if rank == 0 else Simulation(scene, precision)
-            s = sim.state
-            cells = np.clip(np.floor((s.x - grid.origin) * grid.inv_cell).astype(np.int64), 0, grid.ncell - 1)
-            mine = self.dec.owner(cells) == rank
-            for name in ("id", "x", "v", "m", "a", "rho", "p"):
-                setattr(s, name, np.ascontiguousarray(getattr(s, name)[mine]))
-            s.n_owned = int(mine.sum())
-            sim._resize_scratch(s.n)
+            take_block(sim, self.dec, rank)
             self.peers.append(sim)
-            self.halos.append(PeerHalo(self.dec, rank, self.network.endpoint(rank)))
+            self.halos.append(PeerHalo(self.dec, rank, self.network.endpoint(rank),
+                                       scene.decomposition.balance_every))
 
     def step(self):
         _drive([sim.stages(halo) for sim, halo in zip(self.peers, self.halos)])

@@ -78,15 +78,23 @@ class Decomposition:
     def balanced(cls, ncell, dims, cell_index, periodic=(False, False, False)) -> "Decomposition":
         """Cuts that give each block row about the same number of particles (cell_index: (n, 3)
         integer cell coordinates of the particles), axis by axis."""
+        histograms = [np.bincount(cell_index[:, a], minlength=ncell[a]) for a in range(3)]
+        return cls.from_histograms(ncell, dims, histograms, periodic)
+
+    @classmethod
+    def from_histograms(cls, ncell, dims, histograms, periodic=(False, False, False)) -> "Decomposition":
+        """Balanced cuts from per-axis particle counts per cell layer (``histograms[a]``: (ncell[a],)),
+        which peers can sum over the network; every block keeps at least 2 cells along a cut axis."""
         cuts = []
         for a in range(3):
-            counts = np.bincount(cell_index[:, a], minlength=ncell[a]).astype(np.float64)
-            cum = np.concatenate([[0.0], np.cumsum(counts)])
+            cum = np.concatenate([[0.0], np.cumsum(np.asarray(histograms[a], dtype=np.float64))])
             c = [0]
             for k in range(1, dims[a]):
                 target = cum[-1] * k / dims[a]
-                cut = int(np.searchsorted(cum, target))
-                cut = min(max(cut, c[-1] + 2), ncell[a] - 2 * (dims[a] - k))  # >= 2 cells per block
+                cut = int(np.searchsorted(cum, target))  # first layer boundary at or past the target,
+                if cut > 0 and target - cum[cut - 1] < cum[min(cut, len(cum) - 1)] - target:
+                    cut -= 1                             # or the one before it if that is closer
+                cut = min(max(cut, c[-1] + 2), ncell[a] - 2 * (dims[a] - k))
                 c.append(cut)
             c.append(int(ncell[a]))
             cuts.append(tuple(c))

@@ -3,14 +3,21 @@
 ``Simulation.stages`` calls three hooks; each is a generator that yields while it waits for
 messages (a single process never waits):
 
-    exchange_positions   migrants change owner; ghosts' id, x, v, m arrive     (exchange 1)
+    exchange_positions   1a migrants change owner; 1b ghosts' id, x, v, m arrive (exchange 1)
     exchange_fields      ghosts' rho, p arrive, in the order of exchange 1     (exchange 2)
+    exchange_ghosts      any other per-particle value of the ghosts (vorticity omega), same order
     reduce_max           the global max of the step statistics (adaptive dt, health check)
+
+Load balancing (``balance_every`` > 0): at the start of exchange 1 of every K-th step the peers sum
+their per-axis particle histograms, all compute the same balanced cuts
+(``Decomposition.from_histograms``) and send each particle straight to its new owner. Results stay
+bitwise identical because every sum runs in (cell, id) order whatever the cuts.
 
 ``NULL_HALO`` is the single-process halo. ``PeerHalo`` implements the zone model of
 ``sphcore.decomposition`` over any transport endpoint with ``send(dest, tag, arrays)`` and a
-generator ``recv(source, tag)`` (nodes/transport.py); migration (ownership changes) and refresh (read-only ghost copies) are
-separate steps of exchange 1.
+generator ``recv(source, tag)`` (nodes/transport.py). Exchange 1 has two rounds: migrants first,
+so that the ghosts each peer sends are drawn from its owned set *after* migration (a particle that
+just crossed a cut can be a third peer's ghost; only its new owner knows to send it).
 """
 from __future__ import annotations
 
@@ -30,6 +37,10 @@ class NullHalo:
         return
         yield
 
+    def exchange_ghosts(self, sim, phase, arrays):
+        return
+        yield
+
     def reduce_max(self, sim, stats):
         return stats
         yield
@@ -41,78 +52,142 @@ NULL_HALO = NullHalo()
 class PeerHalo:
     """Halo of peer ``rank`` in decomposition ``dec`` over ``transport``."""
 
-    def __init__(self, dec, rank: int, transport):
-        self.dec = dec
+    def __init__(self, dec, rank: int, transport, balance_every: int = 0):
         self.rank = rank
         self.transport = transport
-        self.neighbours = dec.neighbours(rank)
-        self.bytes_sent = {"positions": 0, "fields": 0, "reduce": 0}
+        self.balance_every = balance_every
+        self._set_decomposition(dec)
+        self.bytes_sent = {"positions": 0, "fields": 0, "reduce": 0}  # array bytes per phase (no headers)
+        self.rebalances = 0
+        self._balanced_at = -1
         self._sent_rows = {}     # neighbour -> rows (before the grid sort) sent as its ghosts
         self._ghost_rows = {}    # neighbour -> (first, last) rows (before the sort) of its ghosts
+
+    def _set_decomposition(self, dec):
+        self.dec = dec
+        self.neighbours = dec.neighbours(self.rank)
+        self.others = [q for q in range(dec.n_peers) if q != self.rank]
 
     def _cells(self, grid, x):
         return np.clip(np.floor((x - grid.origin) * grid.inv_cell).astype(np.int64), 0, grid.ncell - 1)
 
     def _send(self, dest, tag, arrays, kind):
-        self.bytes_sent[kind] += sum(a.nbytes for a in arrays.values())
+        self.bytes_sent[kind] = self.bytes_sent.get(kind, 0) + sum(a.nbytes for a in arrays.values())
         self.transport.send(dest, tag, arrays)
 
-    def exchange_positions(self, sim):
+    def _check_particles(self, msg, dtype, q, step):
+        """Particle arrays of a received message have the fields, lengths and dtypes we expect."""
+        n = len(msg.get("id", ()))  # the ids set the length the others must have
+        expected = {"id": ((n,), np.int64), "x": ((n, 3), dtype), "v": ((n, 3), dtype), "m": ((n,), dtype)}
+        for k, (shape, dt) in expected.items():
+            a = msg.get(k)
+            if a is None or a.shape != shape or a.dtype != dt:
+                got = "missing" if a is None else f"{a.dtype}{list(a.shape)}"
+                raise RuntimeError(f"peer {self.rank}, step {step}: particle message from peer {q}: {k} is "
+                                   f"{got}, expected {np.dtype(dt)}{list(shape)}")
+
+    def rebalance(self, sim):
+        """Move the cuts so that peers hold near-equal particle counts; particles go to their new
+        owners directly (any peer, not only neighbours). All peers call this at the same step."""
         step = sim.step_index
         s = sim.state
         n = s.n_owned
+        cells = self._cells(sim.grid, s.x[:n])
+        ncell = self.dec.ncell
+        hist = {f"h{a}": np.bincount(cells[:, a], minlength=ncell[a]).astype(np.int64) for a in range(3)}
+        for q in self.others:
+            self._send(q, (step, "balance"), hist, "balance")
+        total = {k: v.copy() for k, v in hist.items()}
+        for q in self.others:
+            msg = yield from self.transport.recv(q, (step, "balance"))
+            for k in total:
+                total[k] += msg[k]
+        new = type(self.dec).from_histograms(ncell, self.dec.dims, [total[f"h{a}"] for a in range(3)],
+                                             self.dec.periodic)
+        owner = new.owner(cells)
+        own = {name: getattr(s, name)[:n] for name in ("id", "x", "v", "m")}
+        for q in self.others:
+            self._send(q, (step, "migrate"), {k: v[owner == q] for k, v in own.items()}, "migrate")
+        parts = [{k: v[owner == self.rank] for k, v in own.items()}]
+        for q in self.others:
+            parts.append((yield from self.transport.recv(q, (step, "migrate"))))
+            self._check_particles(parts[-1], sim.dtype, q, step)
+        new_state = ParticleState.create(*(np.concatenate([p[k] for p in parts]) for k in ("id", "x", "v", "m")),
+                                         sim.dtype)
+        new_state.n_owned = new_state.n
+        sim.state = new_state
+        sim._resize_scratch(new_state.n)
+        self._set_decomposition(new)
+        self.rebalances += 1
+
+    def exchange_positions(self, sim):
+        step = sim.step_index
+        if self.balance_every and step > 0 and step % self.balance_every == 0 and self._balanced_at != step:
+            self._balanced_at = step
+            yield from self.rebalance(sim)
+        s = sim.state
+        n = s.n_owned
+        # 1a: particles that crossed into a neighbour's block go to it (they moved less than a cell)
         own = {name: getattr(s, name)[:n] for name in ("id", "x", "v", "m")}
         owner = self.dec.owner(self._cells(sim.grid, own["x"]))
         keep = owner == self.rank
-        kept = {k: v[keep] for k, v in own.items()}
-        kept_cells = self._cells(sim.grid, kept["x"])
-        for q in self.neighbours:
-            out = {f"mig_{k}": v[owner == q] for k, v in own.items()}
-            rows = np.nonzero(self.dec.outgoing(kept_cells, self.rank, q))[0]
-            self._sent_rows[q] = rows
-            out.update({f"gh_{k}": v[rows] for k, v in kept.items()})
-            self._send(q, (step, "positions"), out, "positions")
         if np.any(~keep & ~np.isin(owner, self.neighbours)):
             raise RuntimeError(f"peer {self.rank}, step {step}: a particle moved beyond the neighbouring peers")
-        received = {}
         for q in self.neighbours:
-            received[q] = yield from self.transport.recv(q, (step, "positions"))
-        owned = {k: np.concatenate([kept[k]] + [received[q][f"mig_{k}"] for q in self.neighbours])
-                 for k in kept}
-        ghosts = {k: [received[q][f"gh_{k}"] for q in self.neighbours] for k in kept}
-        n_own = len(owned["id"])
-        first = n_own
+            self._send(q, (step, "migrants"), {k: v[owner == q] for k, v in own.items()}, "migrants")
+        parts = [{k: v[keep] for k, v in own.items()}]
         for q in self.neighbours:
-            count = len(received[q]["gh_id"])
+            parts.append((yield from self.transport.recv(q, (step, "migrants"))))
+            self._check_particles(parts[-1], sim.dtype, q, step)
+        owned = {k: np.concatenate([p[k] for p in parts]) for k in own}
+        # 1b: ghosts come from the owned set after migration (a migrant can be another peer's ghost)
+        cells = self._cells(sim.grid, owned["x"])
+        for q in self.neighbours:
+            rows = np.nonzero(self.dec.outgoing(cells, self.rank, q))[0]
+            self._sent_rows[q] = rows
+            self._send(q, (step, "positions"), {k: v[rows] for k, v in owned.items()}, "positions")
+        ghosts = []
+        first = n_own = len(owned["id"])
+        for q in self.neighbours:
+            ghosts.append((yield from self.transport.recv(q, (step, "positions"))))
+            self._check_particles(ghosts[-1], sim.dtype, q, step)
+            count = len(ghosts[-1]["id"])
             self._ghost_rows[q] = (first, first + count)
             first += count
-        new = ParticleState.create(np.concatenate([owned["id"]] + ghosts["id"]),
-                                   np.concatenate([owned["x"]] + ghosts["x"]),
-                                   np.concatenate([owned["v"]] + ghosts["v"]),
-                                   np.concatenate([owned["m"]] + ghosts["m"]), sim.dtype)
+        new = ParticleState.create(*(np.concatenate([owned[k]] + [g[k] for g in ghosts]) for k in ("id", "x", "v", "m")),
+                                   sim.dtype)
         new.n_owned = n_own
         sim.state = new
         sim._resize_scratch(new.n)
 
     def exchange_fields(self, sim):
+        s = sim.state
+        yield from self.exchange_ghosts(sim, "fields", {"rho": s.rho, "p": s.p})
+
+    def exchange_ghosts(self, sim, phase, arrays):
+        """Send the rows of ``arrays`` (per-row arrays of the sorted state) that are the neighbours'
+        ghosts, in the order of exchange 1; fill our ghost rows with theirs."""
         step = sim.step_index
         s = sim.state
         where = np.empty(s.n, dtype=np.int64)  # row before the grid sort -> row after it
         where[sim.grid.last_permutation] = np.arange(s.n)
         for q in self.neighbours:
             rows = where[self._sent_rows[q]]
-            self._send(q, (step, "fields"), {"rho": s.rho[rows], "p": s.p[rows]}, "fields")
+            self._send(q, (step, phase), {k: a[rows] for k, a in arrays.items()}, phase)
         for q in self.neighbours:
-            msg = yield from self.transport.recv(q, (step, "fields"))
+            msg = yield from self.transport.recv(q, (step, phase))
             lo, hi = self._ghost_rows[q]
             rows = where[lo:hi]
-            s.rho[rows] = msg["rho"]
-            s.p[rows] = msg["p"]
+            for k, a in arrays.items():
+                if msg[k].shape != (hi - lo,) + a.shape[1:]:
+                    raise RuntimeError(f"peer {self.rank}, step {step}: {phase} message from peer {q} has {k} of "
+                                       f"shape {msg[k].shape}, expected {(hi - lo,) + a.shape[1:]}")
+                a[rows] = msg[k]
 
     def reduce_max(self, sim, stats):
         step = sim.step_index
         mine = np.array(stats, dtype=np.float64)
-        others = [q for q in range(self.dec.n_peers) if q != self.rank]
+        others = self.others
         for q in others:
             self._send(q, (step, "reduce"), {"stats": mine}, "reduce")
         result = mine.copy()

@@ -164,9 +164,20 @@ class Run:
                                     range=(1.0, math.inf), min_exclusive=True)
 
 
+@dataclass(frozen=True)
+class DecompositionSection:
+    layout: str = spec("auto", "how peers split the domain: auto (smallest halo) or slabs (along the longest axis)",
+                       choices=("auto", "slabs"))
+    dims: tuple = spec((0, 0, 0), "peers per axis (px, py, pz); all 0 = chosen from the peer count and layout",
+                       length=(3,))
+    balance_every: int = spec(0, "move the cut planes every this many steps so peers hold near-equal particle "
+                                 "counts (0 = fixed cuts)", range=(0, 10**9))
+
+
 SECTIONS: dict[str, type] = {
     "scene": SceneInfo, "particles": Particles, "fluid": Fluid, "sph": SPH, "terms": Terms, "forces": Forces,
     "time": Time, "domain": Domain, "obstacles": Obstacle, "boundary": Boundary, "run": Run,
+    "decomposition": DecompositionSection,
 }
 LIST_ITEMS: dict[str, type] = {"fluid.blocks": Block, "domain.planes": Plane, "obstacles": Obstacle}
 
@@ -184,6 +195,7 @@ class Scene:
     obstacles: tuple
     boundary: Boundary
     run: Run
+    decomposition: DecompositionSection = DecompositionSection()
     source: str = ""
 
     @property
@@ -255,9 +267,14 @@ def _check_value(key: str, f: dataclasses.Field, value: Any):
         if length and len(value) not in length:
             raise SceneError(f"{key} = {value!r}: expected {' or '.join(map(str, length))} components")
         elem_bool = isinstance(f.default, tuple) and f.default and isinstance(f.default[0], bool)
+        elem_int = isinstance(f.default, tuple) and f.default and type(f.default[0]) is int
         out = []
         for e in value:
-            if elem_bool:
+            if elem_int:
+                if isinstance(e, bool) or not isinstance(e, int) or e < 0:
+                    raise SceneError(f"{key} = {_short(value)}: expected an array of integers >= 0")
+                out.append(e)
+            elif elem_bool:
                 if not isinstance(e, bool):
                     raise SceneError(f"{key} = {value!r}: expected an array of true/false")
                 out.append(e)
@@ -445,6 +462,10 @@ def _check_combinations(s: Scene) -> Scene:
         raise SceneError(f"domain.size = {list(dom.size)!r}: box edge lengths must be positive")
     if dom.container == "cylinder" and (dom.size[0] <= 0 or dom.size[1] <= 0):
         raise SceneError(f"domain.size = {list(dom.size)!r}: cylinder needs (diameter, height) > 0")
+    dims = s.decomposition.dims
+    if any(dims) and (not all(dims) or (s.dim == 2 and dims[2] != 1)):
+        raise SceneError(f"decomposition.dims = {list(dims)!r}: give all three counts >= 1 (pz = 1 in 2D), "
+                         "or [0, 0, 0] to choose them from the peer count")
     if not s.fluid.blocks:
         raise SceneError("fluid.blocks: a scene needs at least one [[fluid.blocks]] table")
     for i, b in enumerate(s.fluid.blocks):

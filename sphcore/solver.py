@@ -138,11 +138,11 @@ class Simulation:
         cpu.compute_acceleration(int(self.kernel), int(self.viscosity), self.periodic, self.prm_now, s.n_owned, s.x,
                                  s.v, s.m, s.rho, s.p, g.nbr, g.counts, w_.kind, w_.data, w_.tables, self._fill, s.a)
 
-    def step(self, dt_cap: float | None = None):
-        """Advance one time step of a single-process run; ``dt_cap`` shortens the last step of an
-        --until run."""
-        for _ in self.stages(NULL_HALO, dt_cap):
-            raise RuntimeError("a single-process step waited for a message")
+    def step(self, dt_cap: float | None = None, halo=NULL_HALO):
+        """Advance one time step; ``dt_cap`` shortens the last step of an --until run. ``halo`` must
+        block while it waits (NULL_HALO, or a PeerHalo over a Zenoh endpoint)."""
+        for _ in self.stages(halo, dt_cap):
+            raise RuntimeError("a step yielded: its halo's transport does not block (use a cluster driver)")
         return self.dt
 
     def stages(self, halo, dt_cap: float | None = None):
@@ -166,8 +166,10 @@ class Simulation:
             with t("surface_tension"):                             # x, m, rho        -> a (+=)
                 cpu.add_surface_tension(k, per, prm, s.n_owned, s.x, s.m, s.rho, g.nbr, g.counts, s.a)
         if self.use_vorticity:
-            with t("vorticity"):                                   # x, v, rho        -> omega -> a (+=)
+            with t("vorticity"):                                   # x, v, rho        -> omega
                 cpu.compute_vorticity(k, per, prm, s.n_owned, s.x, s.v, s.m, s.rho, g.nbr, g.counts, self._omega)
+            yield from halo.exchange_ghosts(self, "omega", {"omega": self._omega})  # ghosts' omega (exchange 3)
+            with t("confinement"):                                 # omega            -> a (+=)
                 cpu.add_vorticity_confinement(k, per, prm, s.n_owned, s.x, s.m, s.rho, self._omega, g.nbr,
                                               g.counts, s.a)
         if self.use_xsph:
@@ -219,11 +221,11 @@ class Simulation:
         raise SimulationError(f"step {self.step_index} (t = {self.t:.6g} s): {cause}; particles {ids}{more}")
 
     # -- outputs ---------------------------------------------------------------------------------
-    def refresh(self):
+    def refresh(self, halo=NULL_HALO):
         """Recompute neighbours, density and pressure (and a) for the current positions, so that
         outputs are consistent; for leapfrog returns velocities synchronised to the full step."""
-        for _ in self.refresh_stages(NULL_HALO):
-            raise RuntimeError("a single-process refresh waited for a message")
+        for _ in self.refresh_stages(halo):
+            raise RuntimeError("a refresh yielded: its halo's transport does not block")
         return self.synchronised_velocity()
 
     def refresh_stages(self, halo):

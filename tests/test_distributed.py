@@ -15,14 +15,25 @@ def run_single(sc, steps):
     return sim.final_arrays()
 
 
-@pytest.mark.parametrize("dims", [(2, 1, 1), (3, 1, 1), (4, 1, 1), (2, 2, 1)])
-def test_dam_break_n_peers_equal_one_peer_bitwise(dims):
-    # Given the 3D dam break at a coarse spacing, run in one process and split over peers
+@pytest.fixture(scope="module")
+def dam_break_reference():
     sc = scene("dam_break", "particles.spacing=0.04")
-    steps = 150
-    reference = run_single(sc, steps)
+    return run_single(sc, STEPS)
+
+
+STEPS = 150
+
+
+@pytest.mark.parametrize("dims, balance_every", [((2, 1, 1), 0), ((2, 1, 1), 20), ((3, 1, 1), 20),
+                                                 ((4, 1, 1), 20), ((2, 2, 1), 20)])
+def test_dam_break_n_peers_equal_one_peer_bitwise(dims, balance_every, dam_break_reference):
+    # Given the 3D dam break at a coarse spacing, run in one process and split over peers, with the
+    # cut planes moved every 20 steps (load balancing) or fixed
+    sc = scene("dam_break", "particles.spacing=0.04", f"decomposition.balance_every={balance_every}")
+    reference = dam_break_reference
     cluster = InProcessCluster(sc, int(np.prod(dims)), "f64", dims=dims)
-    for _ in range(steps):
+    start_cuts = cluster.halos[0].dec.cuts
+    for _ in range(STEPS):
         cluster.step()
     result = cluster.final_arrays()
     # Then ids are conserved (no particle lost or duplicated through migration) and every array is identical
@@ -30,6 +41,23 @@ def test_dam_break_n_peers_equal_one_peer_bitwise(dims):
     for key in ("x", "v", "rho"):
         assert np.array_equal(result[key], reference[key]), key
     assert sum(len(p.state.id[: p.state.n_owned]) for p in cluster.peers) == len(reference["id"])
+    if balance_every:
+        # and the balancer ran and moved the cuts
+        assert all(h.rebalances == STEPS // balance_every for h in cluster.halos)
+        assert cluster.halos[0].dec.cuts != start_cuts
+
+
+def test_optional_terms_across_peers_equal_one_peer_bitwise():
+    # Given vorticity confinement (needs the ghosts' omega: a third exchange), XSPH and surface tension
+    sc = scene("dam_break", "particles.spacing=0.05", "terms.vorticity_confinement=0.05", "terms.xsph=0.3",
+               "terms.surface_tension=0.02")
+    reference = run_single(sc, 60)
+    cluster = InProcessCluster(sc, 2, "f64", dims=(2, 1, 1))
+    for _ in range(60):
+        cluster.step()
+    result = cluster.final_arrays()
+    for key in ("id", "x", "v", "rho"):
+        assert np.array_equal(result[key], reference[key]), key
 
 
 def test_in_process_network_delivers_by_receiver_sender_and_tag_and_detects_deadlock():
@@ -51,3 +79,15 @@ def test_in_process_network_delivers_by_receiver_sender_and_tag_and_detects_dead
         a.send(1, (0, "fields"), {"x": np.zeros(1)})
     with pytest.raises(DeadlockError):
         _drive([receiver(b, "never")], max_rounds=5)
+
+
+def test_balanced_cuts_are_the_best_cell_layer_cuts():
+    from sphcore.decomposition import Decomposition
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        hist = rng.integers(0, 100, size=12)
+        dec = Decomposition.from_histograms((12, 4, 4), (2, 1, 1), [hist, np.ones(4), np.ones(4)])
+        cut = dec.cuts[0][1]
+        best = min(range(2, 11), key=lambda c: abs(hist[:c].sum() - hist.sum() / 2))
+        assert abs(hist[:cut].sum() - hist.sum() / 2) == abs(hist[:best].sum() - hist.sum() / 2)
+        assert dec.cuts[1] == (0, 4) and dec.cuts[2] == (0, 4)

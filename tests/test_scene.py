@@ -341,7 +341,19 @@ def test_to_dict_is_complete_and_plain():
     d = load_scene(CONFIGS / "tiny.toml").to_dict()
     assert "source" not in d
     assert set(d) == {"scene", "particles", "fluid", "sph", "terms", "forces", "time", "domain", "obstacles",
-                      "boundary", "run"}
+                      "boundary", "run", "decomposition"}
     assert d["sph"]["eos"] == "tait" and d["boundary"]["gap"] == 0.25  # defaults are resolved
     assert d["forces"]["gravity"] == [0.0, -9.81, 0.0]  # lists, not tuples
     assert len(d["fluid"]["blocks"]) == 2 and d["fluid"]["blocks"][1]["shape"] == "sphere"
+
+
+@pytest.mark.parametrize("value, message", [
+    ("[2, 0, 1]", "give all three counts"),
+    ("[2, 1]", "expected 3 components"),
+    ("[2, -1, 1]", "integers >= 0"),
+    ("[2.5, 1, 1]", "integers >= 0"),
+])
+def test_decomposition_dims_are_all_set_or_all_zero(value, message):
+    with pytest.raises(SceneError, match=message):
+        load_scene(CONFIGS / "tiny.toml", [f"decomposition.dims={value}"])
+    assert load_scene(CONFIGS / "tiny.toml", ["decomposition.dims=[2, 1, 1]"]).decomposition.dims == (2, 1, 1)

@@ -1,0 +1,168 @@
+"""A peer: owns one block of the decomposition, steps it, exchanges halos, reports at the end.
+
+Every peer builds the whole scene's particles (same global ids as a single process) and keeps the
+ones in its block (``take_block``); no master sends it anything. ``run_peer`` steps the block over
+a blocking transport (a ``ZenohEndpoint``) with the same loop as a single-process run
+(launch/run.py ``advance``), then gathers to rank 0, which writes the contract outputs:
+
+    every rank -> 0   "final": owned id, x, v, rho + this peer's statistics (JSON as bytes)
+    0 -> every rank   "bye":   outputs written; peers close (rank 0 closes last)
+"""
+from __future__ import annotations
+
+import json
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+
+from sphcore.decomposition import Decomposition, choose_dims
+from sphcore.halo import PeerHalo
+from sphcore.solver import Simulation
+
+log = logging.getLogger("sph.peer")
+
+
+def decomposition_for(scene, grid, n_peers: int) -> Decomposition:
+    """The starting decomposition of ``scene`` for ``n_peers`` (scene [decomposition] dims/layout)."""
+    dims = scene.decomposition.dims
+    if any(dims):
+        if int(np.prod(dims)) != n_peers:
+            raise ValueError(f"decomposition.dims = {list(dims)} makes {int(np.prod(dims))} blocks, but the run "
+                             f"has {n_peers} peers")
+    else:
+        dims = choose_dims(n_peers, grid.ncell, scene.dim, scene.decomposition.layout)
+    periodic = tuple(bool(p > 0) for p in grid.period)
+    return Decomposition.uniform(tuple(int(n) for n in grid.ncell), dims, periodic)
+
+
+def take_block(sim: Simulation, dec: Decomposition, rank: int):
+    """Keep only the particles of ``sim`` in the block of ``rank``."""
+    s, grid = sim.state, sim.grid
+    cells = np.clip(np.floor((s.x - grid.origin) * grid.inv_cell).astype(np.int64), 0, grid.ncell - 1)
+    mine = dec.owner(cells) == rank
+    for name in ("id", "x", "v", "m", "a", "rho", "p"):
+        setattr(s, name, np.ascontiguousarray(getattr(s, name)[mine]))
+    s.n_owned = int(mine.sum())
+    sim._resize_scratch(s.n)
+
+
+class PeerRecorder:
+    """Per-step bookkeeping of one peer: particles held, step seconds, seconds spent waiting."""
+
+    def __init__(self, sim: Simulation, endpoint):
+        self.sim, self.endpoint = sim, endpoint
+        self.particles, self.step_s, self.wait_s = [], [], []
+        self._waited = 0.0
+
+    def __call__(self, seconds: float):
+        waited = sum(self.endpoint.wait_s.values())
+        self.particles.append(self.sim.state.n_owned)
+        self.step_s.append(seconds)
+        self.wait_s.append(waited - self._waited)
+        self._waited = waited
+        self.endpoint.check()
+
+
+def run_peer(scene, rank: int, world: int, endpoint, out: Path | None, precision: str | None,
+             steps: int | None, until: float | None, progress: bool, startup_timeout: float = 120.0) -> dict | None:
+    """Run peer ``rank`` of ``world`` to the end; rank 0 writes ``out`` and returns the summary."""
+    import numba
+
+    from launch.run import advance, make_summary, write_outputs
+    t_start = time.perf_counter()
+    sim = Simulation(scene, precision)
+    dec = decomposition_for(scene, sim.grid, world)
+    take_block(sim, dec, rank)
+    halo = PeerHalo(dec, rank, endpoint, scene.decomposition.balance_every)
+    t_setup = time.perf_counter() - t_start
+    log.info("peer %d/%d: block %s of %s, %d of %d particles, %d numba threads", rank, world,
+             dec.block_of(rank), dec.dims, sim.state.n_owned, sim.n_particles, numba.get_num_threads())
+    endpoint.wait_for_peers(startup_timeout)
+    recorder = PeerRecorder(sim, endpoint)
+    loop = advance(sim, halo, scene, steps, until, progress and rank == 0, on_step=recorder)
+    v = sim.refresh(halo)
+    s = sim.state
+    n = s.n_owned
+    stats = {
+        "rank": rank, "block": list(dec.block_of(rank)), "particles_final": n,
+        "particles": recorder.particles, "step_s": recorder.step_s, "wait_s": recorder.wait_s,
+        "stages": sim.timers.summary(), "loop": loop, "setup_s": t_setup,
+        "bytes_sent": dict(endpoint.bytes_sent), "array_bytes_sent": dict(halo.bytes_sent),
+        "ghosts": int(s.n - n), "leaks": sim.leaks, "kinetic_energy": sim.kinetic_energy(),
+        "neighbours_sum": int(sim.grid.counts[:n].sum()), "neighbours_max": int(sim.grid.counts[:n].max(initial=0)),
+        "neighbours_max_over_run": sim.max_neighbours, "rebalances": halo.rebalances,
+        "dropped_messages": endpoint.dropped, "threads": numba.get_num_threads(),
+        "cuts": [list(c) for c in halo.dec.cuts],
+    }
+    final = {"id": s.id[:n], "x": s.x[:n], "v": np.ascontiguousarray(v[:n]), "rho": s.rho[:n],
+             "stats": np.frombuffer(json.dumps(stats).encode(), dtype=np.uint8)}
+    step = sim.step_index
+    if rank != 0:
+        endpoint.send(0, (step, "final"), final)
+        endpoint.wait(0, (step, "bye"))
+        return None
+    parts = [final] + [endpoint.wait(q, (step, "final")) for q in range(1, world)]
+    peers = [json.loads(bytes(p["stats"]).decode()) for p in parts]
+    arrays = {k: np.concatenate([p[k] for p in parts]) for k in ("id", "x", "v", "rho")}
+    order = np.argsort(arrays["id"], kind="stable")
+    arrays = {k: a[order] for k, a in arrays.items()}
+    if len(arrays["id"]) != sim.n_particles or np.any(np.diff(arrays["id"]) <= 0):
+        raise RuntimeError(f"gathered {len(arrays['id'])} particles with "
+                           f"{len(arrays['id']) - len(np.unique(arrays['id']))} duplicates; the scene has "
+                           f"{sim.n_particles}")
+    summary = make_summary(sim, scene, loop, t_setup, time.perf_counter() - t_start)
+    summary.update(peer_summary(peers, summary, world))
+    if out is not None:
+        write_outputs(out, scene, sim.precision, arrays, summary)
+    for q in range(1, world):
+        endpoint.send(q, (step, "bye"), {})
+    return summary
+
+
+def peer_summary(peers: list[dict], base: dict, world: int) -> dict:
+    """The multi-peer parts of summary.json from every peer's statistics."""
+    particles = np.array([p["particles"] for p in peers], dtype=np.float64)    # (peers, steps)
+    step_s = np.array([p["step_s"] for p in peers])
+    wait_s = np.array([p["wait_s"] for p in peers])
+    compute_s = step_s - wait_s
+    steps = particles.shape[1]
+
+    def imbalance(a):  # max over peers / mean over peers, per step
+        mean = a.mean(0)
+        return a.max(0) / np.where(mean > 0, mean, 1.0)
+
+    phases = sorted({k for p in peers for k in p["bytes_sent"]})
+    bytes_per_phase = {ph: int(sum(p["bytes_sent"].get(ph, 0) for p in peers)) for ph in phases}
+    total_neighbours = sum(p["neighbours_sum"] for p in peers)
+    out = {
+        "peers": world,
+        "leaks": int(sum(p["leaks"] for p in peers)),
+        "kinetic_energy": float(sum(p["kinetic_energy"] for p in peers)),
+        "neighbours": {"mean": total_neighbours / base["particles"], "max": max(p["neighbours_max"] for p in peers),
+                       "max_over_run": max(p["neighbours_max_over_run"] for p in peers)},
+        "bytes_sent": int(sum(bytes_per_phase.values())),
+        "bytes_sent_per_phase": bytes_per_phase,
+        "threads": [p["threads"] for p in peers],
+        "imbalance": {
+            "particles_max_over_mean": {"mean": float(imbalance(particles).mean()) if steps else None,
+                                        "max": float(imbalance(particles).max()) if steps else None},
+            "compute_s_max_over_mean": {"mean": float(imbalance(compute_s).mean()) if steps else None,
+                                        "max": float(imbalance(compute_s).max()) if steps else None},
+            "note": "per timed step, max over peers / mean over peers; 1.0 = perfectly balanced",
+        },
+        "per_peer": [{
+            "rank": p["rank"], "block": p["block"], "particles_final": p["particles_final"],
+            "particles_mean": float(np.mean(p["particles"])) if p["particles"] else float(p["particles_final"]),
+            "ghosts_final": p["ghosts"], "step_s_total": float(np.sum(p["step_s"])),
+            "wait_s_total": float(np.sum(p["wait_s"])),
+            "compute_s_total": float(np.sum(p["step_s"]) - np.sum(p["wait_s"])),
+            "bytes_sent": p["bytes_sent"], "array_bytes_sent": p["array_bytes_sent"],
+            "stages": {k: v["total_s"] for k, v in p["stages"].items()},
+            "rebalances": p["rebalances"], "dropped_messages": p["dropped_messages"], "cuts": p["cuts"],
+        } for p in peers],
+    }
+    if steps:
+        out["bytes_per_step"] = {ph: b / max(1, base["steps"]) for ph, b in bytes_per_phase.items()}
+    return out
