@@ -1,11 +1,13 @@
 """The ``sph`` command line.
 
-    sph run CONFIG.toml [--precision f32|f64] [--steps S | --until T] [--out DIR] [--set section.key=value ...]
+    sph run CONFIG.toml [--peers N] [--precision f32|f64] [--steps S | --until T] [--out DIR] [--set section.key=value ...]
+    sph peer CONFIG.toml --rank R --world N --listen ENDPOINT [--connect ENDPOINT ...] --run-id ID
     sph bench [--sizes ...] [--precisions ...] [--threads ...] [--external]
     sph scene CONFIG.toml            print the fully resolved scene (after --set overrides)
 
 Exit codes: 0 success, 2 bad input (scene, option or override; nothing is written), 3 the simulation
-became unphysical (the message names step, cause and particles), 130 interrupted.
+became unphysical (the message names step, cause and particles), 4 a peer was lost or timed out
+(the message names the peer and the step), 130 interrupted.
 """
 from __future__ import annotations
 
@@ -16,6 +18,7 @@ from pathlib import Path
 
 EXIT_BAD_INPUT = 2
 EXIT_SIMULATION = 3
+EXIT_PEER = 4
 
 
 class UsageError(Exception):
@@ -69,15 +72,46 @@ def build_parser() -> argparse.ArgumentParser:
                      help="override a scene key, validated like the file (repeatable), "
                           "e.g. --set particles.spacing=0.02 --set sph.kernel=cubic_spline")
     run.add_argument("--threads", type=_positive_int, default=None,
-                     help="numba threads (default: all cores)")
+                     help="numba threads per process (default: all cores, divided among the peers)")
     run.add_argument("--backend", choices=("cpu", "cuda"), default="cpu",
                      help="compute backend (cuda: not available yet)")
     run.add_argument("--peers", type=_positive_int, default=1,
-                     help="number of peer processes (only 1 until the distributed runner lands)")
+                     help="number of peer processes on this machine, talking Zenoh over loopback; each owns one "
+                          "block of the domain ([decomposition] in the scene)")
+    run.add_argument("--timeout", type=_positive_float, default=120.0,
+                     help="seconds a peer waits for a message before giving up (names the missing peer)")
     run.add_argument("--record", type=Path, default=None, metavar="FILE.rrd",
                      help="Rerun recording (not available until the viewer lands)")
     run.add_argument("--no-viewer", action="store_true", help="run without a viewer (the only mode for now)")
     run.add_argument("--quiet", action="store_true", help="no progress output")
+
+    peer = sub.add_parser(
+        "peer", help="start one peer of a multi-machine run by hand (rank R of N)",
+        description="Start peer RANK of a WORLD-peer run. Every peer of the run gets the same CONFIG, --set, "
+                    "--precision, --steps/--until and --run-id; each listens on its own endpoint and connects "
+                    "to the others' (at least to every lower rank), e.g. on host B: sph peer dam.toml --rank 1 "
+                    "--world 2 --run-id demo --listen tcp/0.0.0.0:7448 --connect tcp/hostA:7447. Rank 0 "
+                    "gathers the result and writes OUT on its machine. See docs/USAGE.md.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    peer.add_argument("config", type=Path, help="scene file (TOML), the same on every peer")
+    peer.add_argument("--rank", type=_positive_int, required=True, help="this peer's rank, 0..WORLD-1")
+    peer.add_argument("--world", type=_positive_int, required=True, help="number of peers in the run")
+    peer.add_argument("--run-id", required=True,
+                      help="the run's name on the network (letters, digits, - and _); two runs never mix")
+    peer.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
+                      help="Zenoh endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)")
+    peer.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
+                      help="another peer's endpoint, e.g. tcp/10.0.0.2:7447 (repeatable)")
+    peer.add_argument("--out", type=Path, default=None, help="output folder on rank 0 (default: runs/<scene name>)")
+    peer.add_argument("--precision", choices=("f32", "f64"), default=None)
+    plen = peer.add_mutually_exclusive_group()
+    plen.add_argument("--steps", type=_positive_int, default=None)
+    plen.add_argument("--until", type=_positive_float, default=None, metavar="T")
+    peer.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
+    peer.add_argument("--threads", type=_positive_int, default=None, help="numba threads (default: all cores)")
+    peer.add_argument("--timeout", type=_positive_float, default=120.0,
+                      help="seconds to wait for the other peers to join, and for each message")
+    peer.add_argument("--quiet", action="store_true", help="no progress output")
 
     scene = sub.add_parser("scene", help="validate a scene and print it fully resolved (TOML)")
     scene.add_argument("config", type=Path)
@@ -106,11 +140,14 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s", datefmt="%H:%M:%S")
+    from nodes.zenoh_transport import TransportError
     from sphcore.scene import SceneError
     from sphcore.solver import SimulationError
     try:
         if args.command == "run":
             return _cmd_run(args)
+        if args.command == "peer":
+            return _cmd_peer(args)
         if args.command == "scene":
             return _cmd_scene(args)
         if args.command == "bench":
@@ -122,6 +159,9 @@ def main(argv: list[str] | None = None) -> int:
     except SimulationError as e:
         print(f"sph {args.command}: simulation stopped: {e}", file=sys.stderr)
         return EXIT_SIMULATION
+    except TransportError as e:
+        print(f"sph {args.command}: run stopped: {e}", file=sys.stderr)
+        return EXIT_PEER
     except KeyboardInterrupt:
         print(f"sph {args.command}: interrupted", file=sys.stderr)
         return 130
@@ -137,30 +177,101 @@ def _cmd_scene(args) -> int:
     return 0
 
 
+def _check_threads(threads):
+    if threads is not None:
+        import numba
+        if not 1 <= threads <= numba.config.NUMBA_NUM_THREADS:
+            raise UsageError(f"--threads {threads}: allowed 1..{numba.config.NUMBA_NUM_THREADS} on this machine")
+
+
+def _output_folder(args, scene) -> Path:
+    out = args.out if args.out is not None else Path("runs") / scene.scene.name
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {str(out)!r}: exists and is not a folder")
+    return out
+
+
+def _check_peers(scene, n_peers: int):
+    """The scene's decomposition fits n_peers (checked before any process starts)."""
+    from nodes.peer import decomposition_for
+    from sphcore.solver import Simulation
+    if n_peers == 1 and not any(scene.decomposition.dims):
+        return
+    grid = Simulation.grid_for(scene)
+    try:
+        decomposition_for(scene, grid, n_peers)
+    except ValueError as e:
+        raise UsageError(f"--peers {n_peers}: {e}") from None
+
+
 def _cmd_run(args) -> int:
     from sphcore.scene import load_scene
     if args.peers < 1:
         raise UsageError(f"--peers {args.peers}: at least one peer is needed")
-    if args.peers > 1:
-        raise UsageError(f"--peers {args.peers}: multi-peer runs are not available yet; use --peers 1")
     if args.backend != "cpu":
         raise UsageError(f"--backend {args.backend}: not available yet; use --backend cpu")
     if args.record is not None:
         raise UsageError("--record: the Rerun viewer is not available yet; run with --no-viewer")
-    if args.threads is not None:
-        import numba
-        if not 1 <= args.threads <= numba.config.NUMBA_NUM_THREADS:
-            raise UsageError(f"--threads {args.threads}: allowed 1..{numba.config.NUMBA_NUM_THREADS} on this machine")
+    _check_threads(args.threads)
     scene = load_scene(args.config, args.overrides)
-    out = args.out if args.out is not None else Path("runs") / scene.scene.name
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"--out {str(out)!r}: exists and is not a folder")
+    out = _output_folder(args, scene)
+    if args.peers > 1:
+        _check_peers(scene, args.peers)
+        from launch.local import run_local_peers
+        code = run_local_peers(args.config, args.peers, out, args)
+        if code == 0 and not args.quiet:
+            _print_done(out)
+        return code
     from launch.run import run_scene
     summary = run_scene(scene, out, args.precision, args.steps, args.until, args.threads, progress=not args.quiet)
     if not args.quiet:
-        print(f"{summary['particles']} particles, {summary['steps']} steps, t = {summary['sim_time']:.4g} s, "
-              f"{summary['particle_steps_per_s']:.3g} particle-steps/s, leaks {summary['leaks']} -> {out}/",
-              file=sys.stderr)
+        _print_done(out, summary)
+    return 0
+
+
+def _print_done(out: Path, summary: dict | None = None):
+    import json
+    if summary is None:
+        summary = json.loads((out / "summary.json").read_text())
+    print(f"{summary['particles']} particles, {summary['peers']} peer(s), {summary['steps']} steps, "
+          f"t = {summary['sim_time']:.4g} s, {summary['particle_steps_per_s']:.3g} particle-steps/s, "
+          f"leaks {summary['leaks']} -> {out}/", file=sys.stderr)
+
+
+def _cmd_peer(args) -> int:
+    from sphcore.scene import load_scene
+    if args.world < 1 or args.rank >= args.world:
+        raise UsageError(f"--rank {args.rank} --world {args.world}: need 0 <= rank < world")
+    if not args.listen and not args.connect:
+        raise UsageError("give --listen and/or --connect endpoints (e.g. --listen tcp/127.0.0.1:7447)")
+    from nodes import wire
+    try:
+        wire.check_run_id(args.run_id)
+    except ValueError as e:
+        raise UsageError(f"--run-id: {e}") from None
+    for ep in args.listen + args.connect:
+        if "/" not in ep:
+            raise UsageError(f"endpoint {ep!r}: expected PROTOCOL/ADDRESS:PORT, e.g. tcp/127.0.0.1:7447")
+    _check_threads(args.threads)
+    scene = load_scene(args.config, args.overrides)
+    out = _output_folder(args, scene) if args.rank == 0 else None
+    _check_peers(scene, args.world)
+    if args.threads:
+        import numba
+        numba.set_num_threads(args.threads)
+    logging.getLogger().handlers[0].setFormatter(
+        logging.Formatter(f"%(asctime)s peer {args.rank} %(name)s %(levelname)s %(message)s", "%H:%M:%S"))
+    from nodes.peer import run_peer
+    from nodes.zenoh_transport import ZenohEndpoint
+    try:
+        endpoint = ZenohEndpoint(args.run_id, args.rank, args.world, args.listen, args.connect, args.timeout)
+    except Exception as e:  # zenoh raises ZError for endpoints it cannot use
+        raise UsageError(f"cannot open Zenoh with --listen {args.listen} --connect {args.connect}: {e}") from None
+    try:
+        run_peer(scene, args.rank, args.world, endpoint, out, args.precision, args.steps, args.until,
+                 progress=not args.quiet, startup_timeout=args.timeout)
+    finally:
+        endpoint.close()
     return 0
 
 

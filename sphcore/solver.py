@@ -27,6 +27,17 @@ from sphcore.timestep import LIMITS, choose_dt
 DTYPES = {"f32": np.float32, "f64": np.float64}
 
 
+def _make_grid(scene, walls, H, dtype):
+    """The global grid: the walls' bounding box plus one cell of margin on non-periodic axes."""
+    periodic = tuple(bool(p) for p in scene.domain.periodic)
+    lo, hi = walls.lo.copy(), walls.hi.copy()
+    for d in range(3):
+        if not periodic[d] and d < scene.dim:
+            lo[d] -= H
+            hi[d] += H
+    return grid_mod.Grid(lo, hi, H, periodic, dtype)
+
+
 class SimulationError(RuntimeError):
     """The run became unphysical; the message names the step, the cause and the particles."""
 
@@ -60,14 +71,8 @@ class Simulation:
         self.state = ParticleState.create(ids, x, v, np.full(len(ids), mass), dtype)
         self.n_particles = len(ids)
 
-        periodic = tuple(bool(p) for p in scene.domain.periodic)
-        lo, hi = self.walls.lo.copy(), self.walls.hi.copy()
-        for d in range(3):
-            if not periodic[d] and d < scene.dim:  # one cell of margin beyond the walls
-                lo[d] -= self.H
-                hi[d] += self.H
-        self.grid_lo = lo
-        self.grid = grid_mod.Grid(lo, hi, self.H, periodic, dtype)
+        self.grid = _make_grid(scene, self.walls, self.H, dtype)
+        self.grid_lo = self.grid.origin.astype(np.float64)
         self.periodic = int(self.grid.periodic)
         nu = sph.nu if self.viscosity in (Viscosity.MULLER, Viscosity.MORRIS) else 0.0
         self.nu = nu
@@ -98,6 +103,13 @@ class Simulation:
         self.last_limit = ""
         self.prm_now = self.prm
         self.timers = StageTimers()
+
+    @staticmethod
+    def grid_for(scene: Scene):
+        """The global grid of ``scene`` without generating particles (to check a decomposition)."""
+        kernel = KERNELS[scene.sph.kernel]
+        H = scene.sph.support * scene.particles.spacing
+        return _make_grid(scene, build_walls(scene, kernel, H, np.float64), H, np.float64)
 
     def _resize_scratch(self, n: int):
         """Per-step work arrays for n rows (owned + ghosts); reallocated only when n changes."""

@@ -134,7 +134,9 @@ BAD_RUNS = [
     ("bad-type", [TINY, "--set", "particles.spacing=fine"], ["particles.spacing", "fine"]),
     ("bad-override-syntax", [TINY, "--set", "sph.kernel"], ["sph.kernel", "section.key=value"]),
     ("missing-config", [str(CONFIGS / "no_such_scene.toml")], ["no_such_scene.toml"]),
-    ("peers-2", [TINY, "--peers", "2"], ["--peers 2", "not available"]),
+    ("peers-dims", [TINY, "--peers", "3", "--set", "decomposition.dims=[2, 1, 1]"],
+     ["--peers 3", "decomposition.dims = [2, 1, 1]", "2 blocks"]),
+    ("peers-too-many", [TINY, "--peers", "1000"], ["--peers 1000", "do not fit"]),
     ("backend-cuda", [TINY, "--backend", "cuda"], ["--backend cuda", "not available"]),
     ("record", [TINY, "--record", "x.rrd"], ["--record", "not available"]),
 ]

@@ -1,0 +1,127 @@
+"""``sph run --peers N``: N peer processes on this machine, talking Zenoh over loopback.
+
+Each peer is a fresh interpreter (``python -m launch.cli peer ...``: spawned, never forked after
+Zenoh is open) listening on its own ``tcp/127.0.0.1:PORT`` and connecting to every other peer's
+(a full mesh; multicast scouting off). Numba threads per peer default to cores / N. Rank 0 gathers
+the result and writes the usual outputs. The launcher watches the processes: if one exits with an
+error the others notice through Zenoh liveliness, and any still running after a grace period are
+stopped; Ctrl-C stops them all.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+import uuid
+from pathlib import Path
+
+log = logging.getLogger("sph.launch")
+
+
+def free_ports(n: int) -> list[int]:
+    """n distinct loopback ports that were free a moment ago."""
+    socks, ports = [], []
+    try:
+        for _ in range(n):
+            s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+            s.bind(("127.0.0.1", 0))
+            socks.append(s)
+            ports.append(s.getsockname()[1])
+    finally:
+        for s in socks:
+            s.close()
+    return ports
+
+
+def new_run_id() -> str:
+    return uuid.uuid4().hex[:12]
+
+
+def default_threads(n_peers: int) -> int:
+    return max(1, (os.cpu_count() or 1) // n_peers)
+
+
+def peer_command(config: Path, rank: int, world: int, run_id: str, listen: str, connect: list[str], out: Path,
+                 args) -> list[str]:
+    cmd = [sys.executable, "-m", "launch.cli", "peer", str(config), "--rank", str(rank), "--world", str(world),
+           "--run-id", run_id, "--listen", listen, "--out", str(out), "--timeout", str(args.timeout)]
+    for ep in connect:
+        cmd += ["--connect", ep]
+    if args.precision:
+        cmd += ["--precision", args.precision]
+    if args.steps is not None:
+        cmd += ["--steps", str(args.steps)]
+    if args.until is not None:
+        cmd += ["--until", repr(args.until)]
+    for o in args.overrides:
+        cmd += ["--set", o]
+    if args.quiet:
+        cmd.append("--quiet")
+    return cmd
+
+
+def run_local_peers(config: Path, n_peers: int, out: Path, args) -> int:
+    """Start the peers, wait for them; return the exit code (0, or the first failing peer's)."""
+    threads = args.threads or default_threads(n_peers)
+    run_id = new_run_id()
+    ports = free_ports(n_peers)
+    endpoints = [f"tcp/127.0.0.1:{p}" for p in ports]
+    env = dict(os.environ, NUMBA_NUM_THREADS=str(threads), PYTHONUNBUFFERED="1")
+    log.info("run %s: %d peers on this machine, %d numba threads each, endpoints %s", run_id, n_peers, threads,
+             ", ".join(endpoints))
+    procs = []
+    try:
+        for rank in range(n_peers):
+            # each peer connects to the lower ranks and is connected to by the higher ones: a full mesh
+            cmd = peer_command(config, rank, n_peers, run_id, endpoints[rank], endpoints[:rank], out, args)
+            procs.append(subprocess.Popen(cmd, env=env))
+        return _watch(procs)
+    except KeyboardInterrupt:
+        _stop(procs, signal.SIGINT)
+        raise
+    finally:
+        _stop(procs, signal.SIGTERM)
+
+
+def _watch(procs, grace: float = 5.0) -> int:
+    """Wait for every peer. After the first failure, give the others ``grace`` seconds to notice
+    (they exit on their own through Zenoh liveliness) before stopping them."""
+    failed_at, first_failure = None, None
+    while True:
+        codes = [p.poll() for p in procs]
+        for rank, code in enumerate(codes):
+            if code not in (None, 0) and first_failure is None:
+                first_failure = (rank, code)
+                failed_at = time.monotonic()
+                how = f"was killed by signal {-code}" if code < 0 else f"exited with code {code}"
+                log.error("peer %d %s; stopping the run", rank, how)
+        if all(c is not None for c in codes):
+            break
+        if failed_at is not None and time.monotonic() - failed_at > grace:
+            stuck = [r for r, c in enumerate(codes) if c is None]
+            log.error("peers %s still running %.0f s after peer %d failed; stopping them", stuck, grace,
+                      first_failure[0])
+            _stop(procs, signal.SIGTERM)
+            break
+        time.sleep(0.05)
+    if first_failure is None:
+        return 0
+    code = first_failure[1]
+    return code if code > 0 else 4  # killed by a signal: "a peer was lost" (cli.EXIT_PEER)
+
+
+def _stop(procs, sig):
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(sig)
+    deadline = time.monotonic() + 3.0
+    for p in procs:
+        try:
+            p.wait(timeout=max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()

@@ -1,0 +1,126 @@
+"""Peer processes over Zenoh (loopback): `sph run --peers N` reproduces one process bit for bit,
+and a peer that dies or a Ctrl-C stops the whole run quickly, never a hang."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from launch.cli import main
+
+ROOT = Path(__file__).resolve().parent.parent
+DAM = str(ROOT / "configs" / "dam_break.toml")
+SMALL = ["--set", "particles.spacing=0.04", "--precision", "f64"]
+
+
+def sph(*args, **kw):
+    return subprocess.Popen([sys.executable, "-m", "launch.cli", *args], cwd=ROOT, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True, **kw)
+
+
+def test_two_peer_processes_reproduce_one_process_bitwise_with_load_balancing(tmp_path):
+    # Given the 3D dam break run in this process, and as 2 peer processes with cuts moved every 20 steps
+    assert main(["run", DAM, *SMALL, "--steps", "150", "--out", str(tmp_path / "one"), "--quiet"]) == 0
+    p = sph("run", DAM, *SMALL, "--steps", "150", "--out", str(tmp_path / "two"), "--peers", "2",
+            "--set", "decomposition.balance_every=20", "--quiet")
+    out, err = p.communicate(timeout=300)
+    assert p.returncode == 0, err
+    one, two = np.load(tmp_path / "one" / "final.npz"), np.load(tmp_path / "two" / "final.npz")
+    # Then final.npz is bitwise identical, and the summary reports the peers' side of the run
+    for key in ("id", "x", "v", "rho"):
+        assert np.array_equal(one[key], two[key]), key
+    s = json.loads((tmp_path / "two" / "summary.json").read_text())
+    assert s["peers"] == 2 and s["particles"] == len(one["id"]) and s["steps"] == 150
+    assert sum(p["particles_final"] for p in s["per_peer"]) == s["particles"]
+    assert all(p["rebalances"] == 7 and p["dropped_messages"] == 0 for p in s["per_peer"])
+    assert s["bytes_sent"] == sum(s["bytes_sent_per_phase"].values()) > 0
+    assert {"migrants", "positions", "fields", "reduce", "balance", "migrate"} <= set(s["bytes_sent_per_phase"])
+    assert 1.0 <= s["imbalance"]["particles_max_over_mean"]["mean"] < 2.0  # balancing moved particles over
+    for peer in s["per_peer"]:
+        assert peer["wait_s_total"] >= 0 and peer["compute_s_total"] > 0
+
+
+class Lines:
+    """Collect a process's stderr lines in a thread; wait for one that matches."""
+
+    def __init__(self, stream):
+        self.lines = []
+        self._thread = threading.Thread(target=self._read, args=(stream,), daemon=True)
+        self._thread.start()
+
+    def _read(self, stream):
+        for line in stream:
+            self.lines.append(line)
+
+    def wait_for(self, text, timeout):
+        deadline = time.time() + timeout
+        while time.time() < deadline:
+            if any(text in line for line in self.lines):
+                return
+            time.sleep(0.05)
+        raise AssertionError(f"{text!r} not seen in {timeout} s:\n{''.join(self.lines)}")
+
+    def text(self):
+        self._thread.join(5)
+        return "".join(self.lines)
+
+
+def children(pid):
+    out = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                stat = (entry / "stat").read_text()
+                cmd = (entry / "cmdline").read_bytes().split(b"\0")
+            except OSError:
+                continue
+            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+                out.append((int(entry.name), [c.decode() for c in cmd]))
+    return out
+
+
+@pytest.mark.parametrize("how", ["kill-9", "ctrl-c"])
+def test_a_killed_peer_or_ctrl_c_stops_every_process_quickly(how, tmp_path):
+    # Given a 2-peer run that would take minutes
+    p = sph("run", DAM, *SMALL, "--steps", "100000", "--out", str(tmp_path / "o"), "--peers", "2",
+            "--set", "run.log_every=20")
+    log = Lines(p.stderr)
+    log.wait_for("peer 0 sph.run INFO step", timeout=120)
+    peers = {cmd[cmd.index("--rank") + 1]: pid for pid, cmd in children(p.pid) if "--rank" in cmd}
+    assert set(peers) == {"0", "1"}
+    # When peer 1 is killed (no goodbye), or Ctrl-C reaches the whole process group
+    t0 = time.perf_counter()
+    if how == "kill-9":
+        os.kill(peers["1"], signal.SIGKILL)
+    else:
+        os.killpg(p.pid, signal.SIGINT)
+    rc = p.wait(timeout=30)
+    elapsed = time.perf_counter() - t0
+    err = log.text()
+    # Then the launcher and every peer exit non-zero within seconds, saying why; nothing is written
+    assert all(not Path(f"/proc/{pid}").exists() or "zombie" in Path(f"/proc/{pid}/status").read_text().lower()
+               for pid in peers.values())
+    if how == "kill-9":
+        assert rc == 4, err
+        assert "peer 1 was killed by signal 9" in err
+        assert "peer 0" in err and "peer 1 left the run" in err
+        assert elapsed < 5.0, elapsed
+    else:
+        assert rc == 130, err
+        assert "interrupted" in err
+    assert not (tmp_path / "o" / "final.npz").exists()
+
+
+def test_peer_command_checks_its_arguments(capsys):
+    assert main(["peer", DAM, "--rank", "2", "--world", "2", "--run-id", "x", "--listen", "tcp/127.0.0.1:1"]) == 2
+    assert "--rank 2 --world 2" in capsys.readouterr().err
+    assert main(["peer", DAM, "--rank", "0", "--world", "2", "--run-id", "a/b", "--listen", "tcp/127.0.0.1:1"]) == 2
+    assert "--run-id" in capsys.readouterr().err
+    assert main(["peer", DAM, "--rank", "0", "--world", "2", "--run-id", "x"]) == 2
+    assert "--listen" in capsys.readouterr().err
