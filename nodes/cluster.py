@@ -47,7 +47,7 @@ class InProcessCluster:
         self.peers = []
         self.halos = []
         probe = Simulation(scene, precision)
-        self.dec = decomposition_for(scene, probe.grid, n_peers)
+        self.dec = decomposition_for(scene, probe.grid, n_peers, probe.state.x)
         for rank in range(self.dec.n_peers):
             sim = probe if rank == 0 else Simulation(scene, precision)
             take_block(sim, self.dec, rank)

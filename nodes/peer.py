@@ -24,8 +24,10 @@ from sphcore.solver import Simulation
 log = logging.getLogger("sph.peer")
 
 
-def decomposition_for(scene, grid, n_peers: int) -> Decomposition:
-    """The starting decomposition of ``scene`` for ``n_peers`` (scene [decomposition] dims/layout)."""
+def decomposition_for(scene, grid, n_peers: int, x=None) -> Decomposition:
+    """The starting decomposition of ``scene`` for ``n_peers`` (scene [decomposition] dims/layout):
+    cuts balanced by particle count when the initial positions ``x`` are given (every peer has them,
+    so every peer computes the same cuts), else uniform."""
     dims = scene.decomposition.dims
     if any(dims):
         if int(np.prod(dims)) != n_peers:
@@ -34,14 +36,20 @@ def decomposition_for(scene, grid, n_peers: int) -> Decomposition:
     else:
         dims = choose_dims(n_peers, grid.ncell, scene.dim, scene.decomposition.layout)
     periodic = tuple(bool(p > 0) for p in grid.period)
-    return Decomposition.uniform(tuple(int(n) for n in grid.ncell), dims, periodic)
+    ncell = tuple(int(n) for n in grid.ncell)
+    if x is None:
+        return Decomposition.uniform(ncell, dims, periodic)
+    return Decomposition.balanced(ncell, dims, _cells(grid, x), periodic)
+
+
+def _cells(grid, x):
+    return np.clip(np.floor((x - grid.origin) * grid.inv_cell).astype(np.int64), 0, grid.ncell - 1)
 
 
 def take_block(sim: Simulation, dec: Decomposition, rank: int):
     """Keep only the particles of ``sim`` in the block of ``rank``."""
-    s, grid = sim.state, sim.grid
-    cells = np.clip(np.floor((s.x - grid.origin) * grid.inv_cell).astype(np.int64), 0, grid.ncell - 1)
-    mine = dec.owner(cells) == rank
+    s = sim.state
+    mine = dec.owner(_cells(sim.grid, s.x)) == rank
     for name in ("id", "x", "v", "m", "a", "rho", "p"):
         setattr(s, name, np.ascontiguousarray(getattr(s, name)[mine]))
     s.n_owned = int(mine.sum())
@@ -73,7 +81,7 @@ def run_peer(scene, rank: int, world: int, endpoint, out: Path | None, precision
     from launch.run import advance, make_summary, write_outputs
     t_start = time.perf_counter()
     sim = Simulation(scene, precision)
-    dec = decomposition_for(scene, sim.grid, world)
+    dec = decomposition_for(scene, sim.grid, world, sim.state.x)
     take_block(sim, dec, rank)
     halo = PeerHalo(dec, rank, endpoint, scene.decomposition.balance_every)
     t_setup = time.perf_counter() - t_start
@@ -90,7 +98,8 @@ def run_peer(scene, rank: int, world: int, endpoint, out: Path | None, precision
         "particles": recorder.particles, "step_s": recorder.step_s, "wait_s": recorder.wait_s,
         "stages": sim.timers.summary(), "loop": loop, "setup_s": t_setup,
         "bytes_sent": dict(endpoint.bytes_sent), "array_bytes_sent": dict(halo.bytes_sent),
-        "ghosts": int(s.n - n), "leaks": sim.leaks, "kinetic_energy": sim.kinetic_energy(),
+        "ghosts": int(s.n - n), "ghosts_received": halo.ghosts_received, "leaks": sim.leaks,
+        "kinetic_energy": sim.kinetic_energy(),
         "neighbours_sum": int(sim.grid.counts[:n].sum()), "neighbours_max": int(sim.grid.counts[:n].max(initial=0)),
         "neighbours_max_over_run": sim.max_neighbours, "rebalances": halo.rebalances,
         "dropped_messages": endpoint.dropped, "threads": numba.get_num_threads(),
@@ -113,7 +122,7 @@ def run_peer(scene, rank: int, world: int, endpoint, out: Path | None, precision
                            f"{len(arrays['id']) - len(np.unique(arrays['id']))} duplicates; the scene has "
                            f"{sim.n_particles}")
     summary = make_summary(sim, scene, loop, t_setup, time.perf_counter() - t_start)
-    summary.update(peer_summary(peers, summary, world))
+    summary.update(peer_summary(peers, summary, world, sim.dtype.itemsize))
     if out is not None:
         write_outputs(out, scene, sim.precision, arrays, summary)
     for q in range(1, world):
@@ -121,7 +130,14 @@ def run_peer(scene, rank: int, world: int, endpoint, out: Path | None, precision
     return summary
 
 
-def peer_summary(peers: list[dict], base: dict, world: int) -> dict:
+def minimum_halo_bytes(ghosts: int, itemsize: int) -> int:
+    """The least a halo exchange can send: per ghost, exchange 1's id (8 bytes) and x, v (3 floats
+    each), m (1 float), and exchange 2's rho and p (2 floats); nothing else (no headers, no migrants,
+    no reductions)."""
+    return ghosts * (8 + 9 * itemsize)
+
+
+def peer_summary(peers: list[dict], base: dict, world: int, itemsize: int) -> dict:
     """The multi-peer parts of summary.json from every peer's statistics."""
     particles = np.array([p["particles"] for p in peers], dtype=np.float64)    # (peers, steps)
     step_s = np.array([p["step_s"] for p in peers])
@@ -136,6 +152,7 @@ def peer_summary(peers: list[dict], base: dict, world: int) -> dict:
     phases = sorted({k for p in peers for k in p["bytes_sent"]})
     bytes_per_phase = {ph: int(sum(p["bytes_sent"].get(ph, 0) for p in peers)) for ph in phases}
     total_neighbours = sum(p["neighbours_sum"] for p in peers)
+    minimum = minimum_halo_bytes(sum(p["ghosts_received"] for p in peers), itemsize)
     out = {
         "peers": world,
         "leaks": int(sum(p["leaks"] for p in peers)),
@@ -144,6 +161,8 @@ def peer_summary(peers: list[dict], base: dict, world: int) -> dict:
                        "max_over_run": max(p["neighbours_max_over_run"] for p in peers)},
         "bytes_sent": int(sum(bytes_per_phase.values())),
         "bytes_sent_per_phase": bytes_per_phase,
+        "halo_bytes_minimum": minimum,
+        "bytes_over_minimum": (sum(bytes_per_phase.values()) / minimum) if minimum else None,
         "threads": [p["threads"] for p in peers],
         "imbalance": {
             "particles_max_over_mean": {"mean": float(imbalance(particles).mean()) if steps else None,

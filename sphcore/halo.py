@@ -59,6 +59,9 @@ class PeerHalo:
         self._set_decomposition(dec)
         self.bytes_sent = {"positions": 0, "fields": 0, "reduce": 0}  # array bytes per phase (no headers)
         self.rebalances = 0
+        self.ghosts_received = 0  # ghost rows received over the run (the halo's minimum traffic)
+        self.migrated = 0         # particles this peer handed to another owner over the run
+        self.cut_moves = 0        # rebalances that moved a cut
         self._balanced_at = -1
         self._sent_rows = {}     # neighbour -> rows (before the grid sort) sent as its ghosts
         self._ghost_rows = {}    # neighbour -> (first, last) rows (before the sort) of its ghosts
@@ -108,6 +111,8 @@ class PeerHalo:
         own = {name: getattr(s, name)[:n] for name in ("id", "x", "v", "m")}
         for q in self.others:
             self._send(q, (step, "migrate"), {k: v[owner == q] for k, v in own.items()}, "migrate")
+        self.migrated += int(np.count_nonzero(owner != self.rank))
+        self.cut_moves += int(new.cuts != self.dec.cuts)
         parts = [{k: v[owner == self.rank] for k, v in own.items()}]
         for q in self.others:
             parts.append((yield from self.transport.recv(q, (step, "migrate"))))
@@ -135,6 +140,7 @@ class PeerHalo:
             raise RuntimeError(f"peer {self.rank}, step {step}: a particle moved beyond the neighbouring peers")
         for q in self.neighbours:
             self._send(q, (step, "migrants"), {k: v[owner == q] for k, v in own.items()}, "migrants")
+        self.migrated += int(np.count_nonzero(~keep))
         parts = [{k: v[keep] for k, v in own.items()}]
         for q in self.neighbours:
             parts.append((yield from self.transport.recv(q, (step, "migrants"))))
@@ -152,6 +158,7 @@ class PeerHalo:
             ghosts.append((yield from self.transport.recv(q, (step, "positions"))))
             self._check_particles(ghosts[-1], sim.dtype, q, step)
             count = len(ghosts[-1]["id"])
+            self.ghosts_received += count
             self._ghost_rows[q] = (first, first + count)
             first += count
         new = ParticleState.create(*(np.concatenate([owned[k]] + [g[k] for g in ghosts]) for k in ("id", "x", "v", "m")),
