@@ -4,14 +4,18 @@ Each case sets the spacing so that the dam break's water column holds about N pa
 step to compile (or load numba's cache), then times ``--steps`` steps of the stepping loop only.
 With ``--external`` the same scene (same tank, column, spacing and step count) runs in PySPH and
 SPlisHSPlasH in subprocesses (``launch/external``), so all figures come from one run on one
-machine, and ratios are printed side by side.
+machine, and ratios are printed side by side. With ``--peers 1 2 ...`` each case also runs as
+``sph run --peers P`` (P processes over Zenoh on this machine, ``--threads`` numba threads each),
+timed by the run's own summary, and the multi-peer speed-up over one peer is printed.
 """
 from __future__ import annotations
 
 import json
 import logging
 import platform
+import subprocess
 import sys
+import tempfile
 import time
 from datetime import datetime, timezone
 from pathlib import Path
@@ -79,7 +83,10 @@ def run_bench(args) -> int:
                 print(_row(r), flush=True)
         if args.external:
             results += _external(dx, args.steps, args.threads)
+        if args.peers != [1]:
+            results += _peer_cases(scene_path, dx, args)
     _print_ratios(results)
+    _print_peer_ratios(results)
     report = {
         "date": started.isoformat(timespec="seconds"), "command": "sph " + " ".join(sys.argv[1:]),
         "machine": {"platform": platform.platform(), "cpu": _cpu_name(), "cores": numba.config.NUMBA_NUM_THREADS,
@@ -91,6 +98,57 @@ def run_bench(args) -> int:
         args.json.write_text(json.dumps(report, indent=2) + "\n")
         print(f"wrote {args.json}", file=sys.stderr)
     return 0
+
+
+def _peer_cases(scene_path: Path, dx: float, args) -> list[dict]:
+    """``sph run --peers P`` for every P and threads-per-peer T with P x T <= cores."""
+    out = []
+    cores = numba.config.NUMBA_NUM_THREADS
+    for precision in args.precisions:
+        for threads in args.threads:
+            for peers in args.peers:
+                if peers * threads > cores:
+                    continue
+                with tempfile.TemporaryDirectory() as tmp:
+                    cmd = [sys.executable, "-m", "launch.cli", "run", str(scene_path), "--peers", str(peers),
+                           "--threads", str(threads), "--steps", str(args.steps + 1), "--precision", precision,
+                           "--out", tmp, "--quiet", "--set", f"particles.spacing={dx!r}",
+                           "--set", "time.mode='fixed'", "--set", "time.dt=1e-4",
+                           "--set", "decomposition.balance_every=50"]
+                    done = subprocess.run(cmd, capture_output=True, text=True)
+                    if done.returncode != 0:
+                        print(f"  {peers} peers: failed ({done.returncode}): {done.stderr[-2000:]}", file=sys.stderr)
+                        continue
+                    s = json.loads((Path(tmp) / "summary.json").read_text())
+                r = {"code": "sphfluid", "method": "wcsph", "precision": precision, "threads": threads,
+                     "peers": peers, "particles": s["particles"], "dx": dx, "steps": s["loop"]["steps"],
+                     "wall_s": s["loop"]["wall_s"], "particle_steps_per_s": s["particle_steps_per_s"],
+                     "neighbours": s["neighbours"]["mean"], "bytes_sent_per_step": s["bytes_sent"] / s["steps"],
+                     "bytes_over_minimum": s.get("bytes_over_minimum"), "imbalance": s.get("imbalance"),
+                     "wait_s": [p["wait_s_total"] for p in s.get("per_peer", [])]}
+                out.append(r)
+                extra = ""
+                if peers > 1:
+                    extra = (f"  {r['bytes_sent_per_step'] / 1e3:.1f} kB/step ({r['bytes_over_minimum']:.3f}x the "
+                             f"halo minimum), waiting {', '.join(f'{w:.2f}' for w in r['wait_s'])} s")
+                print(f"{peers:>3} peer(s) x {threads} thread(s) {precision} N={r['particles']:>8} "
+                      f"{r['particle_steps_per_s']:10.3e} particle-steps/s{extra}", flush=True)
+    return out
+
+
+def _print_peer_ratios(results: list[dict]):
+    runs = [r for r in results if "peers" in r]
+    if not runs:
+        return
+    print("\nmulti-peer speed-up (P peers x T threads / 1 peer x T threads, same run):")
+    for r in runs:
+        if r["peers"] == 1:
+            continue
+        base = [b for b in runs if b["peers"] == 1 and b["threads"] == r["threads"]
+                and b["precision"] == r["precision"] and abs(b["dx"] - r["dx"]) < 1e-12]
+        if base:
+            print(f"  {r['peers']} peers x {r['threads']} threads {r['precision']} N={r['particles']}: "
+                  f"{r['particle_steps_per_s'] / base[0]['particle_steps_per_s']:.2f}x")
 
 
 def _external(dx: float, steps: int, threads_list) -> list[dict]:

@@ -130,6 +130,9 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--steps", type=_positive_int, default=100, help="timed steps per case")
     bench.add_argument("--external", action="store_true",
                        help="also run PySPH and SPlisHSPlasH on the same scene (if installed)")
+    bench.add_argument("--peers", type=_positive_int, nargs="+", default=[1],
+                       help="also run each case as P peer processes over Zenoh (e.g. --peers 1 2) and print "
+                            "the speed-up over one peer; P x threads must fit the cores")
     bench.add_argument("--config", type=Path, default=None, help="scene to benchmark (default: dam_break)")
     bench.add_argument("--json", type=Path, default=None, help="write results as JSON here")
     return parser

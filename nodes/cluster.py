@@ -53,7 +53,7 @@ class InProcessCluster:
             take_block(sim, self.dec, rank)
             self.peers.append(sim)
             self.halos.append(PeerHalo(self.dec, rank, self.network.endpoint(rank),
-                                       scene.decomposition.balance_every))
+                                       scene.decomposition.balance_every, scene.decomposition.balance_by))
 
     def step(self):
         _drive([sim.stages(halo) for sim, halo in zip(self.peers, self.halos)])

@@ -39,17 +39,13 @@ def decomposition_for(scene, grid, n_peers: int, x=None) -> Decomposition:
     ncell = tuple(int(n) for n in grid.ncell)
     if x is None:
         return Decomposition.uniform(ncell, dims, periodic)
-    return Decomposition.balanced(ncell, dims, _cells(grid, x), periodic)
-
-
-def _cells(grid, x):
-    return np.clip(np.floor((x - grid.origin) * grid.inv_cell).astype(np.int64), 0, grid.ncell - 1)
+    return Decomposition.balanced(ncell, dims, grid.cells_of(x), periodic)
 
 
 def take_block(sim: Simulation, dec: Decomposition, rank: int):
     """Keep only the particles of ``sim`` in the block of ``rank``."""
     s = sim.state
-    mine = dec.owner(_cells(sim.grid, s.x)) == rank
+    mine = dec.owner(sim.grid.cells_of(s.x)) == rank
     for name in ("id", "x", "v", "m", "a", "rho", "p"):
         setattr(s, name, np.ascontiguousarray(getattr(s, name)[mine]))
     s.n_owned = int(mine.sum())
@@ -83,7 +79,8 @@ def run_peer(scene, rank: int, world: int, endpoint, out: Path | None, precision
     sim = Simulation(scene, precision)
     dec = decomposition_for(scene, sim.grid, world, sim.state.x)
     take_block(sim, dec, rank)
-    halo = PeerHalo(dec, rank, endpoint, scene.decomposition.balance_every)
+    halo = PeerHalo(dec, rank, endpoint, scene.decomposition.balance_every,
+                    scene.decomposition.balance_by)
     t_setup = time.perf_counter() - t_start
     log.info("peer %d/%d: block %s of %s, %d of %d particles, %d numba threads", rank, world,
              dec.block_of(rank), dec.dims, sim.state.n_owned, sim.n_particles, numba.get_num_threads())
@@ -98,6 +95,7 @@ def run_peer(scene, rank: int, world: int, endpoint, out: Path | None, precision
         "particles": recorder.particles, "step_s": recorder.step_s, "wait_s": recorder.wait_s,
         "stages": sim.timers.summary(), "loop": loop, "setup_s": t_setup,
         "bytes_sent": dict(endpoint.bytes_sent), "array_bytes_sent": dict(halo.bytes_sent),
+        "wait_s_per_phase": dict(endpoint.wait_s),
         "ghosts": int(s.n - n), "ghosts_received": halo.ghosts_received, "leaks": sim.leaks,
         "kinetic_energy": sim.kinetic_energy(),
         "neighbours_sum": int(sim.grid.counts[:n].sum()), "neighbours_max": int(sim.grid.counts[:n].max(initial=0)),
@@ -175,7 +173,7 @@ def peer_summary(peers: list[dict], base: dict, world: int, itemsize: int) -> di
             "rank": p["rank"], "block": p["block"], "particles_final": p["particles_final"],
             "particles_mean": float(np.mean(p["particles"])) if p["particles"] else float(p["particles_final"]),
             "ghosts_final": p["ghosts"], "step_s_total": float(np.sum(p["step_s"])),
-            "wait_s_total": float(np.sum(p["wait_s"])),
+            "wait_s_total": float(np.sum(p["wait_s"])), "wait_s_per_phase": p["wait_s_per_phase"],
             "compute_s_total": float(np.sum(p["step_s"]) - np.sum(p["wait_s"])),
             "bytes_sent": p["bytes_sent"], "array_bytes_sent": p["array_bytes_sent"],
             "stages": {k: v["total_s"] for k, v in p["stages"].items()},

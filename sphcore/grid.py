@@ -31,6 +31,13 @@ class GridOverflow(RuntimeError):
     pass
 
 
+@njit(inline="always")
+def cell_index(x, i, d, origin, inv_cell, ncell):
+    """Cell coordinate of row i along axis d, clamped to the grid (the one definition of "the cell
+    of a particle": the grid and the decomposition's owners both use it)."""
+    return min(max(int(math.floor((x[i, d] - origin[d]) * inv_cell[d])), 0), ncell[d] - 1)
+
+
 @njit(cache=True, parallel=True)
 def compute_cell_keys(x, n_owned, origin, inv_cell, ncell, keys):
     """keys[i] = cell key of row i, plus ncells for ghost rows (i >= n_owned): sorting by key puts
@@ -38,10 +45,18 @@ def compute_cell_keys(x, n_owned, origin, inv_cell, ncell, keys):
     nx, ny, nz = ncell[0], ncell[1], ncell[2]
     ncells = nx * ny * nz
     for i in prange(x.shape[0]):
-        ix = min(max(int(math.floor((x[i, 0] - origin[0]) * inv_cell[0])), 0), nx - 1)
-        iy = min(max(int(math.floor((x[i, 1] - origin[1]) * inv_cell[1])), 0), ny - 1)
-        iz = min(max(int(math.floor((x[i, 2] - origin[2]) * inv_cell[2])), 0), nz - 1)
+        ix = cell_index(x, i, 0, origin, inv_cell, ncell)
+        iy = cell_index(x, i, 1, origin, inv_cell, ncell)
+        iz = cell_index(x, i, 2, origin, inv_cell, ncell)
         keys[i] = (iz * ny + iy) * nx + ix + (ncells if i >= n_owned else 0)
+
+
+@njit(cache=True, parallel=True)
+def compute_cell_coords(x, origin, inv_cell, ncell, out):
+    """out[i] = (ix, iy, iz) of every row of x."""
+    for i in prange(x.shape[0]):
+        for d in range(3):
+            out[i, d] = cell_index(x, i, d, origin, inv_cell, ncell)
 
 
 @njit(cache=True)
@@ -309,6 +324,12 @@ class Grid:
                 return most
             self.capacity = int(most * 1.25) + 8
             self.nbr = np.empty((max(n_query, self.nbr.shape[0]), self.capacity), dtype=np.int32)
+
+    def cells_of(self, x):
+        """(n, 3) int64 cell coordinates of positions x (n, 3)."""
+        out = np.empty((len(x), 3), dtype=np.int64)
+        compute_cell_coords(x, self.origin, self.inv_cell, self.ncell, out)
+        return out
 
     def bin(self, state):
         """Sort the state by cell and rebuild the neighbour list of the owned particles."""

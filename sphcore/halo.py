@@ -52,10 +52,12 @@ NULL_HALO = NullHalo()
 class PeerHalo:
     """Halo of peer ``rank`` in decomposition ``dec`` over ``transport``."""
 
-    def __init__(self, dec, rank: int, transport, balance_every: int = 0):
+    def __init__(self, dec, rank: int, transport, balance_every: int = 0, balance_by: str = "particles"):
         self.rank = rank
         self.transport = transport
         self.balance_every = balance_every
+        self.balance_by = balance_by
+        self._compute_s = 0.0    # the stage timers' total at the last rebalance
         self._set_decomposition(dec)
         self.bytes_sent = {"positions": 0, "fields": 0, "reduce": 0}  # array bytes per phase (no headers)
         self.rebalances = 0
@@ -71,8 +73,6 @@ class PeerHalo:
         self.neighbours = dec.neighbours(self.rank)
         self.others = [q for q in range(dec.n_peers) if q != self.rank]
 
-    def _cells(self, grid, x):
-        return np.clip(np.floor((x - grid.origin) * grid.inv_cell).astype(np.int64), 0, grid.ncell - 1)
 
     def _send(self, dest, tag, arrays, kind):
         self.bytes_sent[kind] = self.bytes_sent.get(kind, 0) + sum(a.nbytes for a in arrays.values())
@@ -89,22 +89,30 @@ class PeerHalo:
                 raise RuntimeError(f"peer {self.rank}, step {step}: particle message from peer {q}: {k} is "
                                    f"{got}, expected {np.dtype(dt)}{list(shape)}")
 
+    def _seconds_per_particle(self, sim, n):
+        """This peer's compute seconds per owned particle and step since the last rebalance."""
+        total = sum(sum(v) for v in sim.timers.samples.values())
+        spent = total - self._compute_s if total >= self._compute_s else total  # timers were reset
+        self._compute_s = total
+        return spent / self.balance_every / max(n, 1) if spent > 0 else 1.0
+
     def rebalance(self, sim):
         """Move the cuts so that peers hold near-equal particle counts; particles go to their new
         owners directly (any peer, not only neighbours). All peers call this at the same step."""
         step = sim.step_index
         s = sim.state
         n = s.n_owned
-        cells = self._cells(sim.grid, s.x[:n])
+        cells = sim.grid.cells_of(s.x[:n])
         ncell = self.dec.ncell
-        hist = {f"h{a}": np.bincount(cells[:, a], minlength=ncell[a]).astype(np.int64) for a in range(3)}
+        weight = self._seconds_per_particle(sim, n) if self.balance_by == "time" else 1.0
+        hist = {f"h{a}": np.bincount(cells[:, a], minlength=ncell[a]) * weight for a in range(3)}
         for q in self.others:
             self._send(q, (step, "balance"), hist, "balance")
-        total = {k: v.copy() for k, v in hist.items()}
+        received = {self.rank: hist}
         for q in self.others:
-            msg = yield from self.transport.recv(q, (step, "balance"))
-            for k in total:
-                total[k] += msg[k]
+            received[q] = yield from self.transport.recv(q, (step, "balance"))
+        # summed in rank order on every peer, so that every peer gets the same bits and the same cuts
+        total = {k: sum(received[q][k] for q in range(self.dec.n_peers)) for k in hist}
         new = type(self.dec).from_histograms(ncell, self.dec.dims, [total[f"h{a}"] for a in range(3)],
                                              self.dec.periodic)
         owner = new.owner(cells)
@@ -134,20 +142,25 @@ class PeerHalo:
         n = s.n_owned
         # 1a: particles that crossed into a neighbour's block go to it (they moved less than a cell)
         own = {name: getattr(s, name)[:n] for name in ("id", "x", "v", "m")}
-        owner = self.dec.owner(self._cells(sim.grid, own["x"]))
+        cells = sim.grid.cells_of(own["x"])
+        owner = self.dec.owner(cells)
         keep = owner == self.rank
-        if np.any(~keep & ~np.isin(owner, self.neighbours)):
+        n_leaving = n - int(np.count_nonzero(keep))
+        self.migrated += n_leaving
+        if n_leaving and np.any(~keep & ~np.isin(owner, self.neighbours)):
             raise RuntimeError(f"peer {self.rank}, step {step}: a particle moved beyond the neighbouring peers")
         for q in self.neighbours:
-            self._send(q, (step, "migrants"), {k: v[owner == q] for k, v in own.items()}, "migrants")
-        self.migrated += int(np.count_nonzero(~keep))
-        parts = [{k: v[keep] for k, v in own.items()}]
+            to_q = owner == q if n_leaving else slice(0, 0)
+            self._send(q, (step, "migrants"), {k: v[to_q] for k, v in own.items()}, "migrants")
+        parts = [own if not n_leaving else {k: v[keep] for k, v in own.items()}]
+        cell_parts = [cells if not n_leaving else cells[keep]]
         for q in self.neighbours:
             parts.append((yield from self.transport.recv(q, (step, "migrants"))))
             self._check_particles(parts[-1], sim.dtype, q, step)
+            cell_parts.append(sim.grid.cells_of(parts[-1]["x"]))
         owned = {k: np.concatenate([p[k] for p in parts]) for k in own}
+        cells = np.concatenate(cell_parts)
         # 1b: ghosts come from the owned set after migration (a migrant can be another peer's ghost)
-        cells = self._cells(sim.grid, owned["x"])
         for q in self.neighbours:
             rows = np.nonzero(self.dec.outgoing(cells, self.rank, q))[0]
             self._sent_rows[q] = rows

@@ -170,8 +170,12 @@ class DecompositionSection:
                        choices=("auto", "slabs"))
     dims: tuple = spec((0, 0, 0), "peers per axis (px, py, pz); all 0 = chosen from the peer count and layout",
                        length=(3,))
-    balance_every: int = spec(0, "move the cut planes every this many steps so peers hold near-equal particle "
-                                 "counts (0 = fixed cuts)", range=(0, 10**9))
+    balance_every: int = spec(0, "move the cut planes every this many steps so peers get near-equal work "
+                                 "(0 = fixed cuts; the first cuts always balance the initial particles)",
+                              range=(0, 10**9))
+    balance_by: str = spec("time", "what balancing equalises: measured compute time (particles weighted by each "
+                                   "peer's seconds per particle) or particle counts (reproducible cuts)",
+                           choices=("time", "particles"))
 
 
 SECTIONS: dict[str, type] = {

@@ -24,12 +24,14 @@ def dam_break_reference():
 STEPS = 400
 
 
-@pytest.mark.parametrize("dims, balance_every", [((2, 1, 1), 0), ((2, 1, 1), 25), ((3, 1, 1), 25),
-                                                 ((4, 1, 1), 25), ((2, 2, 1), 25)])
-def test_dam_break_n_peers_equal_one_peer_bitwise(dims, balance_every, dam_break_reference):
+@pytest.mark.parametrize("dims, balance_every, balance_by", [
+    ((2, 1, 1), 0, "particles"), ((2, 1, 1), 25, "particles"), ((3, 1, 1), 25, "particles"),
+    ((4, 1, 1), 25, "particles"), ((2, 2, 1), 25, "particles"), ((3, 1, 1), 25, "time")])
+def test_dam_break_n_peers_equal_one_peer_bitwise(dims, balance_every, balance_by, dam_break_reference):
     # Given the 3D dam break at a coarse spacing, run in one process and split over peers, with the
     # cut planes moved every 25 steps (load balancing) or fixed
-    sc = scene("dam_break", "particles.spacing=0.04", f"decomposition.balance_every={balance_every}")
+    sc = scene("dam_break", "particles.spacing=0.04", f"decomposition.balance_every={balance_every}",
+               f"decomposition.balance_by={balance_by}")
     reference = dam_break_reference
     cluster = InProcessCluster(sc, int(np.prod(dims)), "f64", dims=dims)
     for _ in range(STEPS):
@@ -44,7 +46,7 @@ def test_dam_break_n_peers_equal_one_peer_bitwise(dims, balance_every, dam_break
     if balance_every:
         # and the balancer ran
         assert all(h.rebalances == STEPS // balance_every for h in cluster.halos)
-        MOVED_CUTS[dims] = cluster.halos[0].cut_moves
+        MOVED_CUTS[dims, balance_by] = cluster.halos[0].cut_moves
 
 
 MOVED_CUTS = {}
