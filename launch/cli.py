@@ -80,6 +80,14 @@ def build_parser() -> argparse.ArgumentParser:
                           "block of the domain ([decomposition] in the scene)")
     run.add_argument("--timeout", type=_positive_float, default=120.0,
                      help="seconds a peer waits for a message before giving up (names the missing peer)")
+    run.add_argument("--hosts", type=Path, default=None, metavar="FILE",
+                     help="run one peer per line of FILE ('HOST PORT [THREADS]') over ssh instead of on this "
+                          "machine; see docs/USAGE.md")
+    run.add_argument("--ssh", default="ssh -o BatchMode=yes", help="--hosts: the ssh command")
+    run.add_argument("--remote-dir", default=None, help="--hosts: the repository on the hosts (default: this folder)")
+    run.add_argument("--remote-python", default="python3",
+                     help="--hosts: the Python with sphfluid installed on the hosts, e.g. /shared/sph/.venv/bin/python")
+    run.add_argument("--listen-host", default="0.0.0.0", help="--hosts: the address each peer listens on")
     run.add_argument("--record", type=Path, default=None, metavar="FILE.rrd",
                      help="Rerun recording (not available until the viewer lands)")
     run.add_argument("--no-viewer", action="store_true", help="run without a viewer (the only mode for now)")
@@ -215,6 +223,17 @@ def _cmd_run(args) -> int:
         raise UsageError(f"--backend {args.backend}: not available yet; use --backend cpu")
     if args.record is not None:
         raise UsageError("--record: the Rerun viewer is not available yet; run with --no-viewer")
+    if args.hosts is not None:
+        from launch.hosts import read_hosts, run_hosts
+        scene = load_scene(args.config, args.overrides)
+        try:
+            hosts = read_hosts(args.hosts)
+        except ValueError as e:
+            raise UsageError(f"--hosts: {e}") from None
+        if args.peers not in (1, len(hosts)):
+            raise UsageError(f"--peers {args.peers} --hosts {args.hosts}: the hosts file lists {len(hosts)} peers")
+        _check_peers(scene, len(hosts))
+        return run_hosts(args.config, args.hosts, args)
     _check_threads(args.threads)
     scene = load_scene(args.config, args.overrides)
     out = _output_folder(args, scene)

@@ -38,7 +38,8 @@ LEASE_MS = 5000
 
 
 def zenoh_config(listen: list[str], connect: list[str], lease_ms: int = LEASE_MS):
-    """Peer-mode configuration: explicit endpoints only, no multicast scouting. A peer whose process
+    """Peer-mode configuration: explicit endpoints only (no multicast scouting, no gossip: every
+    launcher connects each peer to all lower ranks, a full mesh). A peer whose process
     ends is gone at once (its sockets close); one whose links go silent (machine or network down) is
     declared gone after ``lease_ms``. Shorter leases flap on an overloaded machine (seen with 64 peers
     on 2 cores at 1 s)."""
@@ -46,6 +47,7 @@ def zenoh_config(listen: list[str], connect: list[str], lease_ms: int = LEASE_MS
     conf = zenoh.Config()
     conf.insert_json5("mode", json.dumps("peer"))
     conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("scouting/gossip/enabled", "false")  # links only where --listen/--connect say
     conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
     conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
     conf.insert_json5("transport/link/tx/lease", str(int(lease_ms)))
