@@ -125,6 +125,7 @@ def run_peer(scene, rank: int, world: int, endpoint, out: Path | None, precision
         write_outputs(out, scene, sim.precision, arrays, summary)
     for q in range(1, world):
         endpoint.send(q, (step, "bye"), {})
+    endpoint.wait_until_alone()
     return summary
 
 

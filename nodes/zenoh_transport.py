@@ -139,7 +139,8 @@ class ZenohEndpoint:
         deadline = t0 + self.timeout
         with self._cv:
             while key not in self._mail:
-                self._check_lost(step, phase)
+                if phase != "bye" or source in self._lost:  # at the end, peers that got their bye leave
+                    self._check_lost(step, phase)
                 left = deadline - time.perf_counter()
                 if left <= 0:
                     state = "alive" if source in self._alive else "not connected"
@@ -173,6 +174,20 @@ class ZenohEndpoint:
                     missing = sorted(set(range(self.world)) - self._alive)
                     raise PeerTimeout(f"peer {self.rank}: peers {missing} did not join run {self.run!r} within "
                                       f"{timeout:g} s (check their --listen/--connect endpoints)")
+                self._cv.wait(min(left, 0.5))
+
+    def wait_until_alone(self, timeout: float = 10.0):
+        """Rank 0 at the end: wait for the other peers to leave (they do once they have our "bye"),
+        so that closing our session cannot cut off a message still on its way."""
+        deadline = time.perf_counter() + timeout
+        with self._cv:
+            self._closing = True  # peers leaving now is the plan, not a loss
+            while self._alive - {self.rank}:
+                left = deadline - time.perf_counter()
+                if left <= 0:
+                    log.warning("peer %d: peers %s still connected %g s after the end of the run", self.rank,
+                                sorted(self._alive - {self.rank}), timeout)
+                    return
                 self._cv.wait(min(left, 0.5))
 
     def close(self):

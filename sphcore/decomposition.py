@@ -16,7 +16,6 @@ and so the results, are identical. No networking here: ``nodes/`` moves the byte
 """
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import dataclass
 
@@ -38,9 +37,11 @@ def choose_dims(n_peers: int, ncell, dim: int, layout: str = "auto") -> tuple[in
         dims[axis] = n_peers
         candidates = [tuple(dims)]
     elif layout == "auto":
-        for combo in itertools.product(range(1, n_peers + 1), repeat=dim):
-            if math.prod(combo) == n_peers:
-                candidates.append(tuple(combo) + (1,) * (3 - dim))
+        divisors = [d for d in range(1, n_peers + 1) if n_peers % d == 0]
+        for px in divisors:
+            for py in divisors if dim == 3 else [n_peers // px]:
+                if (n_peers // px) % py == 0:
+                    candidates.append((px, py, n_peers // (px * py)) if dim == 3 else (px, py, 1))
     else:
         raise ValueError(f"layout must be 'auto' or 'slabs', got {layout!r}")
     best, best_cost = None, math.inf

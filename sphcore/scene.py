@@ -512,7 +512,7 @@ def reference_markdown() -> str:
                 lo, hi = meta["range"]
                 allowed = f"{'(' if meta.get('min_exclusive') else '['}{lo:g}, {hi:g}]"
             elif meta.get("length"):
-                allowed = "2 or 3 components"
+                allowed = " or ".join(map(str, meta["length"])) + " components"
             shown = _toml_value(default)
             lines.append(f"| `{f.name}` | `{shown}` | {allowed} | {meta['help']} |")
         lines.append("")
