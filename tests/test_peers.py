@@ -50,13 +50,14 @@ class Lines:
     """Collect a process's stderr lines in a thread; wait for one that matches."""
 
     def __init__(self, stream):
-        self.lines = []
+        self.lines, self.arrived = [], []
         self._thread = threading.Thread(target=self._read, args=(stream,), daemon=True)
         self._thread.start()
 
     def _read(self, stream):
         for line in stream:
             self.lines.append(line)
+            self.arrived.append(time.perf_counter())
 
     def wait_for(self, text, timeout):
         deadline = time.time() + timeout
@@ -65,6 +66,10 @@ class Lines:
                 return
             time.sleep(0.05)
         raise AssertionError(f"{text!r} not seen in {timeout} s:\n{''.join(self.lines)}")
+
+    def first(self, text):
+        """Arrival time (perf_counter) of the first line containing text."""
+        return next(t for line, t in zip(self.lines, self.arrived) if text in line)
 
     def text(self):
         self._thread.join(5)
@@ -110,6 +115,9 @@ def test_a_killed_peer_or_ctrl_c_stops_every_process_quickly(how, tmp_path):
         assert rc == 4, err
         assert "peer 1 was killed by signal 9" in err
         assert "peer 0" in err and "peer 1 left the run" in err
+        # the launcher and peer 0 both said so within 2 s of the kill; all processes were gone within 5 s
+        assert log.first("peer 1 was killed by signal 9") - t0 < 2.0
+        assert log.first("peer 1 left the run") - t0 < 2.0
         assert elapsed < 5.0, elapsed
     else:
         assert rc == 130, err
