@@ -99,8 +99,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "--precision, --steps/--until and --run-id; each listens on its own endpoint and connects "
                     "to the others' (at least to every lower rank), e.g. on host B: sph peer dam.toml --rank 1 "
                     "--world 2 --run-id demo --listen tcp/0.0.0.0:7448 --connect tcp/hostA:7447. Rank 0 "
-                    "gathers the result and writes OUT on its machine. See docs/USAGE.md.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                    "gathers the result and writes OUT on its machine. See docs/USAGE.md.")
     peer.add_argument("config", type=Path, help="scene file (TOML), the same on every peer")
     peer.add_argument("--rank", type=_positive_int, required=True, help="this peer's rank, 0..WORLD-1")
     peer.add_argument("--world", type=_positive_int, required=True, help="number of peers in the run")
@@ -111,14 +110,16 @@ def build_parser() -> argparse.ArgumentParser:
     peer.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
                       help="another peer's endpoint, e.g. tcp/10.0.0.2:7447 (repeatable)")
     peer.add_argument("--out", type=Path, default=None, help="output folder on rank 0 (default: runs/<scene name>)")
-    peer.add_argument("--precision", choices=("f32", "f64"), default=None)
+    peer.add_argument("--precision", choices=("f32", "f64"), default=None,
+                      help="floating point precision (default: the scene's run.precision)")
     plen = peer.add_mutually_exclusive_group()
-    plen.add_argument("--steps", type=_positive_int, default=None)
-    plen.add_argument("--until", type=_positive_float, default=None, metavar="T")
-    peer.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
+    plen.add_argument("--steps", type=_positive_int, default=None, help="number of steps (default: time.steps)")
+    plen.add_argument("--until", type=_positive_float, default=None, metavar="T", help="run until simulated time T")
+    peer.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                      help="override a scene key (repeatable; the same on every peer)")
     peer.add_argument("--threads", type=_positive_int, default=None, help="numba threads (default: all cores)")
     peer.add_argument("--timeout", type=_positive_float, default=120.0,
-                      help="seconds to wait for the other peers to join, and for each message")
+                      help="seconds to wait for the other peers to join, and for each message (default: 120)")
     peer.add_argument("--quiet", action="store_true", help="no progress output")
 
     scene = sub.add_parser("scene", help="validate a scene and print it fully resolved (TOML)")
