@@ -88,9 +88,15 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--remote-python", default="python3",
                      help="--hosts: the Python with sphfluid installed on the hosts, e.g. /shared/sph/.venv/bin/python")
     run.add_argument("--listen-host", default="0.0.0.0", help="--hosts: the address each peer listens on")
-    run.add_argument("--record", type=Path, default=None, metavar="FILE.rrd",
-                     help="Rerun recording (not available until the viewer lands)")
-    run.add_argument("--no-viewer", action="store_true", help="run without a viewer (the only mode for now)")
+    view = run.add_argument_group("viewer", "frames composited by depth and logged to Rerun every render.every "
+                                            "steps; by default recorded to OUT/run.rrd (sph replay OUT/run.rrd)")
+    view.add_argument("--record", type=Path, default=None, metavar="FILE.rrd",
+                      help="record to this file instead of OUT/run.rrd")
+    view.add_argument("--no-viewer", action="store_true", help="no frames, no recording")
+    view.add_argument("--spawn", action="store_true", help="also open the native Rerun viewer")
+    view.add_argument("--serve-web", action="store_true", help="also serve the web viewer on localhost (URL printed)")
+    view.add_argument("--connect", dest="rerun_url", default=None, metavar="URL",
+                      help="also stream to an already running Rerun viewer, e.g. rerun+http://127.0.0.1:9876/proxy")
     run.add_argument("--quiet", action="store_true", help="no progress output")
 
     peer = sub.add_parser(
@@ -121,6 +127,37 @@ def build_parser() -> argparse.ArgumentParser:
     peer.add_argument("--timeout", type=_positive_float, default=120.0,
                       help="seconds to wait for the other peers to join, and for each message (default: 120)")
     peer.add_argument("--quiet", action="store_true", help="no progress output")
+    peer.add_argument("--no-frames", action="store_true",
+                      help="never render framelets (by default: every render.every steps while a viewer listens)")
+
+    viewer = sub.add_parser(
+        "viewer", help="composite a run's framelets and stream them to Rerun (joins a running run too)",
+        description="Subscribe to the framelets of run RUN_ID, composite them by depth and log them to Rerun. "
+                    "Connect to one or more peers' endpoints (the ones they --listen on); the viewer can join "
+                    "and leave at any time without disturbing the run. Stops when the run ends or on Ctrl-C.")
+    viewer.add_argument("config", type=Path, help="the run's scene file (for the cameras, colours and the box)")
+    viewer.add_argument("--run-id", required=True, help="the run to watch")
+    viewer.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
+                        help="a peer's Zenoh endpoint, e.g. tcp/10.0.0.1:7447 (repeatable)")
+    viewer.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
+                        help="Zenoh endpoint for peers to connect to (repeatable)")
+    viewer.add_argument("--world", type=_positive_int, default=None,
+                        help="number of peers (default: learnt from the first framelet)")
+    viewer.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                        help="the run's --set overrides (render settings may differ)")
+    viewer.add_argument("--record", type=Path, default=None, metavar="FILE.rrd", help="record to this file")
+    viewer.add_argument("--spawn", action="store_true", help="open the native Rerun viewer")
+    viewer.add_argument("--serve-web", action="store_true", help="serve the web viewer on localhost")
+    viewer.add_argument("--rerun-url", default=None, metavar="URL", help="stream to a running Rerun viewer")
+    viewer.add_argument("--idle-timeout", type=_positive_float, default=None,
+                        help="stop after this many seconds without a framelet")
+    viewer.add_argument("--stats", type=Path, default=None, metavar="FILE.json",
+                        help="write frame counts and composite latency here at the end")
+
+    replay = sub.add_parser("replay", help="open a recording (.rrd) in the Rerun viewer",
+                            description="Open FILE.rrd in the native Rerun viewer, or serve it to a browser.")
+    replay.add_argument("file", type=Path, help="a recording, e.g. runs/dam_break/run.rrd")
+    replay.add_argument("--serve-web", action="store_true", help="serve the web viewer on localhost instead")
 
     scene = sub.add_parser("scene", help="validate a scene and print it fully resolved (TOML)")
     scene.add_argument("config", type=Path)
@@ -160,6 +197,10 @@ def main(argv: list[str] | None = None) -> int:
             return _cmd_run(args)
         if args.command == "peer":
             return _cmd_peer(args)
+        if args.command == "viewer":
+            return _cmd_viewer(args)
+        if args.command == "replay":
+            return _cmd_replay(args)
         if args.command == "scene":
             return _cmd_scene(args)
         if args.command == "bench":
@@ -222,8 +263,10 @@ def _cmd_run(args) -> int:
         raise UsageError(f"--peers {args.peers}: at least one peer is needed")
     if args.backend != "cpu":
         raise UsageError(f"--backend {args.backend}: not available yet; use --backend cpu")
-    if args.record is not None:
-        raise UsageError("--record: the Rerun viewer is not available yet; run with --no-viewer")
+    if args.no_viewer and (args.record or args.spawn or args.serve_web or args.rerun_url):
+        raise UsageError("--no-viewer cannot be combined with --record, --spawn, --serve-web or --connect")
+    if args.record is not None and args.record.suffix != ".rrd":
+        raise UsageError(f"--record {str(args.record)!r}: the file name must end in .rrd")
     if args.hosts is not None:
         from launch.hosts import read_hosts, run_hosts
         scene = load_scene(args.config, args.overrides)
@@ -241,15 +284,69 @@ def _cmd_run(args) -> int:
     if args.peers > 1:
         _check_peers(scene, args.peers)
         from launch.local import run_local_peers
-        code = run_local_peers(args.config, args.peers, out, args)
+        code = run_local_peers(args.config, args.peers, out, args, viewer=viewer_options(args, scene, out))
         if code == 0 and not args.quiet:
             _print_done(out)
         return code
     from launch.run import run_scene
-    summary = run_scene(scene, out, args.precision, args.steps, args.until, args.threads, progress=not args.quiet)
+    summary = run_scene(scene, out, args.precision, args.steps, args.until, args.threads, progress=not args.quiet,
+                        viewer=viewer_options(args, scene, out))
     if not args.quiet:
         _print_done(out, summary)
     return 0
+
+
+def viewer_options(args, scene, out: Path) -> dict | None:
+    """Where the frames go, or None for no frames at all."""
+    if args.no_viewer or scene.render.every == 0:
+        return None
+    return {"record": args.record or out / "run.rrd", "spawn": args.spawn, "serve_web": args.serve_web,
+            "connect": args.rerun_url}
+
+
+def _cmd_viewer(args) -> int:
+    import os
+
+    from nodes import wire
+    from nodes.frames import domain_box
+    from nodes.viewer import open_recording, run_viewer
+    from sphcore.scene import load_scene
+    os.environ.setdefault("RERUN_ANALYTICS", "0")
+    try:
+        wire.check_run_id(args.run_id)
+    except ValueError as e:
+        raise UsageError(f"--run-id: {e}") from None
+    if not (args.connect or args.listen):
+        raise UsageError("give --connect (a peer's endpoint) and/or --listen")
+    if not (args.record or args.spawn or args.serve_web or args.rerun_url):
+        raise UsageError("say where the frames go: --record FILE.rrd, --spawn, --serve-web or --rerun-url URL")
+    scene = load_scene(args.config, args.overrides)
+    rec = open_recording(args.run_id, args.record, args.spawn, args.serve_web, args.rerun_url)
+    import signal
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # stopped by the launcher: flush the recording
+
+    def ready():
+        print("viewer ready", flush=True)
+
+    frames = run_viewer(scene, args.run_id, args.listen, args.connect, rec, domain_box(scene), args.world, 0,
+                        ready=ready, idle_timeout=args.idle_timeout, stats_path=args.stats)
+    print(f"sph viewer: {frames} frames", file=sys.stderr)
+    return 0
+
+
+def _cmd_replay(args) -> int:
+    import os
+    import shutil
+    import subprocess
+    if not args.file.is_file():
+        raise UsageError(f"{str(args.file)!r}: no such recording")
+    rerun = shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
+    cmd = [rerun, str(args.file)] + (["--serve-web"] if args.serve_web else [])
+    if not args.serve_web and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        raise UsageError("no display for the native viewer here; use --serve-web and open the printed URL, "
+                         "or copy the .rrd to a machine with a display and run: rerun FILE.rrd")
+    env = dict(os.environ, RERUN_ANALYTICS="0")
+    return subprocess.call(cmd, env=env)
 
 
 def _print_done(out: Path, summary: dict | None = None):
@@ -292,7 +389,7 @@ def _cmd_peer(args) -> int:
         raise UsageError(f"cannot open Zenoh with --listen {args.listen} --connect {args.connect}: {e}") from None
     try:
         run_peer(scene, args.rank, args.world, endpoint, out, args.precision, args.steps, args.until,
-                 progress=not args.quiet, startup_timeout=args.timeout)
+                 progress=not args.quiet, startup_timeout=args.timeout, frames=not args.no_frames)
     finally:
         endpoint.close()
     return 0

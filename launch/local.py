@@ -15,6 +15,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 import uuid
 from pathlib import Path
@@ -64,27 +65,79 @@ def peer_command(config: Path, rank: int, world: int, run_id: str, listen: str, 
     return cmd
 
 
-def run_local_peers(config: Path, n_peers: int, out: Path, args) -> int:
-    """Start the peers, wait for them; return the exit code (0, or the first failing peer's)."""
+def viewer_command(config: Path, run_id: str, listen: str, n_peers: int, viewer: dict, args) -> list[str]:
+    cmd = [sys.executable, "-m", "launch.cli", "viewer", str(config), "--run-id", run_id, "--listen", listen,
+           "--world", str(n_peers)]
+    if viewer["record"]:
+        cmd += ["--record", str(viewer["record"]), "--stats", str(Path(viewer["record"]).with_name("viewer.json"))]
+    if viewer["spawn"]:
+        cmd.append("--spawn")
+    if viewer["serve_web"]:
+        cmd.append("--serve-web")
+    if viewer["connect"]:
+        cmd += ["--rerun-url", viewer["connect"]]
+    for o in args.overrides:
+        cmd += ["--set", o]
+    return cmd
+
+
+def _start_viewer(cmd, env, timeout: float = 120.0):
+    """Start the viewer and wait for its "viewer ready" line (subscribed), so no frame is missed."""
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, text=True)
+    ready = threading.Event()
+
+    def read():
+        for line in proc.stdout:
+            if line.strip() == "viewer ready":
+                ready.set()
+            else:
+                sys.stdout.write(line)
+
+    threading.Thread(target=read, daemon=True).start()
+    deadline = time.monotonic() + timeout
+    while not ready.wait(0.1):
+        if proc.poll() is not None or time.monotonic() > deadline:
+            _stop([proc], signal.SIGTERM)
+            raise RuntimeError(f"the viewer did not start (exit code {proc.returncode})")
+    return proc
+
+
+def run_local_peers(config: Path, n_peers: int, out: Path, args, viewer: dict | None = None) -> int:
+    """Start the viewer (if any) and the peers, wait for them; return the exit code (0, or the first
+    failing peer's)."""
     threads = args.threads or default_threads(n_peers)
     run_id = new_run_id()
-    ports = free_ports(n_peers)
-    endpoints = [f"tcp/127.0.0.1:{p}" for p in ports]
-    env = dict(os.environ, NUMBA_NUM_THREADS=str(threads), PYTHONUNBUFFERED="1")
+    ports = free_ports(n_peers + 1)
+    endpoints = [f"tcp/127.0.0.1:{p}" for p in ports[:n_peers]]
+    viewer_endpoint = f"tcp/127.0.0.1:{ports[-1]}"
+    env = dict(os.environ, NUMBA_NUM_THREADS=str(threads), PYTHONUNBUFFERED="1", RERUN_ANALYTICS="0")
     log.info("run %s: %d peers on this machine, %d numba threads each, endpoints %s", run_id, n_peers, threads,
              ", ".join(endpoints))
-    procs = []
+    procs, view = [], None
     try:
+        if viewer is not None:
+            view = _start_viewer(viewer_command(config, run_id, viewer_endpoint, n_peers, viewer, args), env)
         for rank in range(n_peers):
-            # each peer connects to the lower ranks and is connected to by the higher ones: a full mesh
-            cmd = peer_command(config, rank, n_peers, run_id, endpoints[rank], endpoints[:rank], out, args)
+            # each peer connects to the lower ranks and is connected to by the higher ones (a full
+            # mesh), and to the viewer
+            connect = endpoints[:rank] + ([viewer_endpoint] if view is not None else [])
+            cmd = peer_command(config, rank, n_peers, run_id, endpoints[rank], connect, out, args)
+            if view is None:
+                cmd.append("--no-frames")
             procs.append(subprocess.Popen(cmd, env=env))
-        return _watch(procs)
+        code = _watch(procs)
+        if view is not None and code == 0:
+            try:
+                view.wait(timeout=30)  # it stops by itself after rank 0's end notice
+            except subprocess.TimeoutExpired:
+                log.warning("the viewer did not stop 30 s after the peers; stopping it")
+        # after a failure the viewer is stopped at once (SIGTERM: it flushes the recording first)
+        return code
     except KeyboardInterrupt:
-        _stop(procs, signal.SIGINT)
+        _stop(procs + ([view] if view else []), signal.SIGINT)
         raise
     finally:
-        _stop(procs, signal.SIGTERM)
+        _stop(procs + ([view] if view else []), signal.SIGTERM)
 
 
 def _watch(procs, grace: float = 5.0) -> int:

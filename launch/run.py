@@ -62,8 +62,10 @@ class Progress:
 
 
 def run_scene(scene: Scene, out: Path, precision: str | None, steps: int | None, until: float | None,
-              threads: int | None, progress: bool = True) -> dict:
-    """Run ``scene`` and write summary.json, final.npz and scene.toml into ``out``; return the summary."""
+              threads: int | None, progress: bool = True, viewer: dict | None = None) -> dict:
+    """Run ``scene`` and write summary.json, final.npz and scene.toml into ``out``; return the summary.
+    ``viewer`` (record / spawn / serve_web / connect) renders a frame every render.every steps and
+    logs it to Rerun from this process (a single peer needs no compositing over the network)."""
     if threads:
         numba.set_num_threads(threads)
     t_start = time.perf_counter()
@@ -71,9 +73,35 @@ def run_scene(scene: Scene, out: Path, precision: str | None, steps: int | None,
     t_setup = time.perf_counter() - t_start
     log.info("%s: %d particles, %s, %d numba threads", scene.scene.name, sim.n_particles, sim.precision,
              numba.get_num_threads())
-    loop = advance(sim, NULL_HALO, scene, steps, until, progress)
+    on_step, view = None, None
+    if viewer is not None:
+        import os
+
+        from nodes.frames import FrameMaker, domain_box
+        from nodes.viewer import Viewer, open_recording
+        os.environ.setdefault("RERUN_ANALYTICS", "0")
+        box = domain_box(scene)
+        rec = open_recording(f"{scene.scene.name}-{os.getpid()}", viewer["record"], viewer["spawn"],
+                             viewer["serve_web"], viewer["connect"])
+        view = Viewer(scene, box, rec, 1, sim.n_particles)
+        maker = FrameMaker(scene, box, 0, 1, sim.n_particles)
+
+        def on_step(seconds):
+            if maker.due(sim):
+                view.add(sim.step_index, 0, *maker.make(sim))
+
+    try:
+        loop = advance(sim, NULL_HALO, scene, steps, until, progress, on_step=on_step)
+    finally:
+        if view is not None:
+            view.flush()
+            view.rec.flush()
     final = sim.final_arrays()
     summary = make_summary(sim, scene, loop, t_setup, time.perf_counter() - t_start)
+    if view is not None:
+        summary["viewer"] = {"frames": view.frames, "record": str(viewer["record"]) if viewer["record"] else None,
+                             "composite_latency_ms_median": float(np.median(view.latency_ms)) if view.latency_ms
+                             else None}
     write_outputs(out, scene, sim.precision, final, summary)
     return summary
 

@@ -4,6 +4,7 @@ Key expressions (every one under ``sph/<run>/``, so two runs on one network neve
 
     sph/<run>/halo/<dest>/<source>     halo messages from peer <source> to peer <dest>
     sph/<run>/alive/<rank>             liveliness token of peer <rank> (gone = the peer died)
+    sph/<run>/frame/<rank>             framelets (and rank 0's "end") from peer <rank> to any viewer
 
 A message is a small self-describing header and the raw bytes of numpy arrays; nothing is ever
 unpickled from the network:
@@ -62,6 +63,14 @@ def alive_key(run: str, rank: int) -> str:
 
 def alive_all(run: str) -> str:
     return f"sph/{run}/alive/*"
+
+
+def frame_key(run: str, rank: int) -> str:
+    return f"sph/{run}/frame/{rank}"
+
+
+def frame_all(run: str) -> str:
+    return f"sph/{run}/frame/*"
 
 
 def rank_from_key(key: str) -> int:

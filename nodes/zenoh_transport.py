@@ -127,6 +127,30 @@ class ZenohEndpoint:
         pub.put(payload)
         self.bytes_sent[phase] = self.bytes_sent.get(phase, 0) + len(payload)
 
+    def _frame_publisher(self):
+        pub = self._publishers.get("frame")
+        if pub is None:
+            pub = self.session.declare_publisher(wire.frame_key(self.run, self.rank),
+                                                 congestion_control=self._zenoh.CongestionControl.DROP)
+            self._publishers["frame"] = pub
+        return pub
+
+    def viewer_listening(self) -> bool:
+        """Whether a viewer is subscribed to our framelets (peers render only then)."""
+        return self._frame_publisher().matching_status.matching
+
+    def publish_frame(self, step: int, phase: str, arrays: dict, reliable: bool = False):
+        """Publish to any viewer: framelets are dropped rather than wait when the link is congested
+        (peers never wait for a viewer); the end-of-run notice is reliable."""
+        from nodes.viewer import VIEWER
+        payload = wire.encode(self.run, step, phase, self.rank, VIEWER, arrays)
+        if reliable:
+            self.session.put(wire.frame_key(self.run, self.rank), payload,
+                             congestion_control=self._zenoh.CongestionControl.BLOCK)
+        else:
+            self._frame_publisher().put(payload)
+        self.bytes_sent["frames"] = self.bytes_sent.get("frames", 0) + len(payload)
+
     def recv(self, source: int, tag: tuple):
         """Generator with the in-process interface; it blocks instead of yielding."""
         return self.wait(source, tag)

@@ -36,5 +36,7 @@ if [[ ! -f $stamp || pyproject.toml -nt $stamp ]]; then
   .venv/bin/python -m pip install -q -e ".[dev]"
   touch "$stamp"
 fi
+# Rerun: no usage analytics from this machine (the viewer also runs with RERUN_ANALYTICS=0)
+.venv/bin/rerun analytics disable >/dev/null 2>&1 || true
 .venv/bin/sph --help >/dev/null
 echo "setup: ready (.venv/bin/sph)"

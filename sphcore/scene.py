@@ -178,12 +178,38 @@ class DecompositionSection:
                            choices=("time", "particles"))
 
 
+@dataclass(frozen=True)
+class RenderCamera:
+    name: str = spec("camera", "name used to switch to this camera (render.camera, the control channel)")
+    eye: tuple = spec((1.0, 1.0, 2.0), "camera position (m)", length=(3,))
+    target: tuple = spec((0.0, 0.0, 0.0), "point looked at (m)", length=(3,))
+    up: tuple = spec((0.0, 1.0, 0.0), "up direction", length=(3,))
+    fov: float = spec(40.0, "vertical field of view (degrees)", range=(1.0, 170.0))
+
+
+@dataclass(frozen=True)
+class Render:
+    every: int = spec(10, "steps between rendered frames (each peer renders its own particles; 0 = no frames)",
+                      range=(0, 10**9))
+    width: int = spec(640, "image width (pixels)", range=(16, 8192))
+    height: int = spec(480, "image height (pixels)", range=(16, 8192))
+    color_by: str = spec("speed", "quantity shown by colour", choices=("speed", "density", "pressure", "rank"))
+    range: tuple = spec((0.0, 0.0), "colour range [low, high]; [0, 0] = a default for the quantity "
+                                     "(speed 0..c0/10, density rho0 +-2 %, pressure 0..0.02 rho0 c0^2)", length=(2,))
+    radius: float = spec(0.6, "splat radius in spacings", range=(0.05, 10.0))
+    camera: str = spec("default", "active camera: 'default' (frames the domain) or a [[render.cameras]] name")
+    points_every: int = spec(0, "also log every k-th particle (by id) as a 3D point cloud (0 = off)",
+                             range=(0, 10**9))
+    cameras: list = spec([], "extra named cameras ([[render.cameras]])")
+
+
 SECTIONS: dict[str, type] = {
     "scene": SceneInfo, "particles": Particles, "fluid": Fluid, "sph": SPH, "terms": Terms, "forces": Forces,
     "time": Time, "domain": Domain, "obstacles": Obstacle, "boundary": Boundary, "run": Run,
-    "decomposition": DecompositionSection,
+    "decomposition": DecompositionSection, "render": Render,
 }
-LIST_ITEMS: dict[str, type] = {"fluid.blocks": Block, "domain.planes": Plane, "obstacles": Obstacle}
+LIST_ITEMS: dict[str, type] = {"fluid.blocks": Block, "domain.planes": Plane, "obstacles": Obstacle,
+                               "render.cameras": RenderCamera}
 
 
 @dataclass(frozen=True)
@@ -200,6 +226,7 @@ class Scene:
     boundary: Boundary
     run: Run
     decomposition: DecompositionSection = DecompositionSection()
+    render: Render = Render()
     source: str = ""
 
     @property
@@ -470,6 +497,18 @@ def _check_combinations(s: Scene) -> Scene:
     if any(dims) and (not all(dims) or (s.dim == 2 and dims[2] != 1)):
         raise SceneError(f"decomposition.dims = {list(dims)!r}: give all three counts >= 1 (pz = 1 in 2D), "
                          "or [0, 0, 0] to choose them from the peer count")
+    names = [c.name for c in s.render.cameras]
+    if len(set(names)) != len(names) or "default" in names:
+        raise SceneError(f"render.cameras: names must be unique and not 'default', got {names!r}")
+    if s.render.camera not in ["default"] + names:
+        raise SceneError(f"render.camera = {s.render.camera!r}: allowed values are 'default'"
+                         + "".join(f", {n!r}" for n in names))
+    for i, c in enumerate(s.render.cameras):
+        if all(a == b for a, b in zip(c.eye, c.target)):
+            raise SceneError(f"render.cameras[{i}].eye = {list(c.eye)!r}: must differ from its target")
+    lo, hi = s.render.range
+    if (lo, hi) != (0.0, 0.0) and not hi > lo:
+        raise SceneError(f"render.range = {[lo, hi]!r}: high must exceed low (or [0, 0] for the default)")
     if not s.fluid.blocks:
         raise SceneError("fluid.blocks: a scene needs at least one [[fluid.blocks]] table")
     for i, b in enumerate(s.fluid.blocks):

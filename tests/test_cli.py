@@ -38,10 +38,10 @@ def tiny_run(tmp_path_factory):
     return proc, out
 
 
-def test_console_script_run_exits_0_and_writes_the_three_outputs(tiny_run):
+def test_console_script_run_exits_0_and_writes_the_outputs_and_the_recording(tiny_run):
     proc, out = tiny_run
     assert proc.returncode == 0, proc.stderr
-    assert sorted(p.name for p in out.iterdir()) == ["final.npz", "scene.toml", "summary.json"]
+    assert sorted(p.name for p in out.iterdir()) == ["final.npz", "run.rrd", "scene.toml", "summary.json"]
 
 
 def test_summary_json_contract(tiny_run):
@@ -138,7 +138,8 @@ BAD_RUNS = [
      ["--peers 3", "decomposition.dims = [2, 1, 1]", "2 blocks"]),
     ("peers-too-many", [TINY, "--peers", "1000"], ["--peers 1000", "do not fit"]),
     ("backend-cuda", [TINY, "--backend", "cuda"], ["--backend cuda", "not available"]),
-    ("record", [TINY, "--record", "x.rrd"], ["--record", "not available"]),
+    ("record-suffix", [TINY, "--record", "x.txt"], ["--record", "x.txt", "must end in .rrd"]),
+    ("no-viewer-spawn", [TINY, "--no-viewer", "--spawn"], ["--no-viewer", "--spawn"]),
 ]
 
 

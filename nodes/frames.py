@@ -1,0 +1,57 @@
+"""Frames of a running simulation: every ``render.every`` steps a peer renders its own particles into
+a framelet (sphcore.render) with a few statistics, for the viewer (nodes/viewer.py).
+
+``FrameMaker`` is the part shared by a peer process (which publishes over Zenoh, only while a
+viewer listens) and a single-process run (which hands frames straight to an in-process Viewer).
+Rendering is timed as the stage ``render``, so its cost shows in summary.json beside the physics.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from sphcore.render import SceneRenderer
+
+
+class FrameMaker:
+    def __init__(self, scene, box, rank: int, world: int, particles_total: int):
+        self.renderer = SceneRenderer(scene, *box, world)
+        self.every = scene.render.every
+        self.points_every = scene.render.points_every
+        self.rank, self.world, self.particles_total = rank, world, particles_total
+        self._seen = {}  # stage -> samples already summarised
+
+    def due(self, sim) -> bool:
+        return self.every > 0 and sim.step_index % self.every == 0
+
+    def make(self, sim, bytes_sent: int = 0):
+        """(framelet, stats, points) of this peer's owned particles now."""
+        s = sim.state
+        n = s.n_owned
+        with sim.timers("render"):
+            frame = self.renderer.framelet(self.rank, s.x[:n], s.v[:n], s.rho[:n], s.p[:n], s.id[:n])
+            points = None
+            if self.points_every:
+                points = s.x[:n][s.id[:n] % self.points_every == 0]
+        stage_ms = {}
+        for name, samples in sim.timers.samples.items():
+            first = self._seen.get(name, 0)
+            if first > len(samples):  # timers were reset
+                first = 0
+            if len(samples) > first:
+                stage_ms[name] = 1e3 * float(np.mean(samples[first:]))
+            self._seen[name] = len(samples)
+        dev = float(np.max(s.rho[:n]) / sim.prm.rho0 - 1.0) if n else 0.0
+        stats = {"step": sim.step_index, "sim_time": sim.t, "world": self.world, "particles": n,
+                 "particles_total": self.particles_total, "stage_ms": stage_ms, "bytes_sent": int(bytes_sent),
+                 "kinetic_energy": sim.kinetic_energy(), "max_density_deviation": dev, "wall_time": time.time()}
+        return frame, stats, points
+
+
+def domain_box(scene):
+    """The box drawn around the fluid and framed by the default camera: the walls' bounds."""
+    from sphcore.boundaries import build_walls
+    from sphcore.choices import KERNELS
+    walls = build_walls(scene, KERNELS[scene.sph.kernel], scene.sph.support * scene.particles.spacing, np.float64)
+    return walls.lo.astype(np.float64), walls.hi.astype(np.float64)
