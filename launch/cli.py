@@ -154,6 +154,17 @@ def build_parser() -> argparse.ArgumentParser:
     viewer.add_argument("--stats", type=Path, default=None, metavar="FILE.json",
                         help="write frame counts and composite latency here at the end")
 
+    control = sub.add_parser(
+        "control", help="pause/resume a running run, switch its camera or change safe parameters",
+        description="Send a command to a running multi-peer run (connect to rank 0's endpoint). Every peer "
+                    "applies it after the same step, and the viewer records it. Commands: pause | resume | "
+                    "camera NAME | color_by speed|density|pressure|rank | set KEY=VALUE with KEY one of "
+                    "forces.external, forces.gravity, sph.alpha, sph.nu, boundary.friction, boundary.restitution.")
+    control.add_argument("--run-id", required=True)
+    control.add_argument("--connect", action="append", default=[], metavar="ENDPOINT", required=True,
+                         help="rank 0's Zenoh endpoint, e.g. tcp/127.0.0.1:7447")
+    control.add_argument("words", nargs="+", metavar="COMMAND", help="e.g. pause, or set forces.external=[2,0,0]")
+
     replay = sub.add_parser("replay", help="open a recording (.rrd) in the Rerun viewer",
                             description="Open FILE.rrd in the native Rerun viewer, or serve it to a browser.")
     replay.add_argument("file", type=Path, help="a recording, e.g. runs/dam_break/run.rrd")
@@ -201,6 +212,8 @@ def main(argv: list[str] | None = None) -> int:
             return _cmd_viewer(args)
         if args.command == "replay":
             return _cmd_replay(args)
+        if args.command == "control":
+            return _cmd_control(args)
         if args.command == "scene":
             return _cmd_scene(args)
         if args.command == "bench":
@@ -331,6 +344,39 @@ def _cmd_viewer(args) -> int:
     frames = run_viewer(scene, args.run_id, args.listen, args.connect, rec, domain_box(scene), args.world, 0,
                         ready=ready, idle_timeout=args.idle_timeout, stats_path=args.stats)
     print(f"sph viewer: {frames} frames", file=sys.stderr)
+    return 0
+
+
+def _cmd_control(args) -> int:
+    import time
+
+    import numpy as np
+    import zenoh
+
+    from nodes import control, wire
+    from nodes.zenoh_transport import zenoh_config
+    text = " ".join(args.words)
+    try:
+        control.parse(text)
+        wire.check_run_id(args.run_id)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    session = zenoh.open(zenoh_config([], args.connect))
+    try:
+        pub = session.declare_publisher(wire.control_key(args.run_id),
+                                        congestion_control=zenoh.CongestionControl.BLOCK)
+        deadline = time.monotonic() + 10.0
+        while not pub.matching_status.matching:  # rank 0 of that run subscribes to commands
+            if time.monotonic() > deadline:
+                raise UsageError(f"no run {args.run_id!r} is listening at {', '.join(args.connect)} "
+                                 "(connect to rank 0's endpoint)")
+            time.sleep(0.05)
+        pub.put(wire.encode(args.run_id, -1, "control", wire.CONTROLLER, 0,
+                            {"command": np.frombuffer(text.encode(), dtype=np.uint8)}))
+        time.sleep(0.2)  # let the message leave before the session closes
+    finally:
+        session.close()
+    print(f"sph control: sent {text!r} to run {args.run_id}", file=sys.stderr)
     return 0
 
 

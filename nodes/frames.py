@@ -21,6 +21,7 @@ class FrameMaker:
         self.points_every = scene.render.points_every
         self.rank, self.world, self.particles_total = rank, world, particles_total
         self._seen = {}  # stage -> samples already summarised
+        self.controls = []  # control commands applied since the last frame (logged by the viewer)
 
     def due(self, sim) -> bool:
         return self.every > 0 and sim.step_index % self.every == 0
@@ -45,7 +46,9 @@ class FrameMaker:
         dev = float(np.max(s.rho[:n]) / sim.prm.rho0 - 1.0) if n else 0.0
         stats = {"step": sim.step_index, "sim_time": sim.t, "world": self.world, "particles": n,
                  "particles_total": self.particles_total, "stage_ms": stage_ms, "bytes_sent": int(bytes_sent),
-                 "kinetic_energy": sim.kinetic_energy(), "max_density_deviation": dev, "wall_time": time.time()}
+                 "kinetic_energy": sim.kinetic_energy(), "max_density_deviation": dev, "wall_time": time.time(),
+                 "controls": self.controls}
+        self.controls = []
         return frame, stats, points
 
 

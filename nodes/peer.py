@@ -69,6 +69,75 @@ class PeerRecorder:
         self.endpoint.check()
 
 
+class Controls:
+    """Control commands (nodes/control.py) on a peer: rank 0 validates what the endpoint received
+    and hands it to its halo, which announces it in the step's reduction; after the step every
+    peer applies the announced commands. ``pause`` holds every peer after that step until rank 0
+    gets ``resume`` and tells the others."""
+
+    def __init__(self, sim, halo, endpoint, maker):
+        self.sim, self.halo, self.endpoint, self.maker = sim, halo, endpoint, maker
+        self.applied = []  # (step, description), for the summary
+        if halo.rank == 0:
+            halo.control_source = self._validated
+
+    def _validated(self) -> list:
+        from nodes import control
+        cameras = list(self.maker.renderer.cameras) if self.maker else ["default"]
+        out = []
+        for cmd in self.endpoint.take_commands():
+            try:
+                out.append(control.validate(self.sim.scene, cmd, cameras))
+            except ValueError as e:
+                log.warning("peer 0: rejected control command %s: %s", control.describe(cmd), e)
+        return out
+
+    def after_step(self):
+        from nodes import control
+        commands, self.halo.announced = self.halo.announced, []
+        for cmd in commands:
+            step = self.sim.step_index
+            log.info("peer %d: step %d: %s", self.halo.rank, step, control.describe(cmd))
+            self.applied.append((step, control.describe(cmd)))
+            if self.maker is not None:
+                self.maker.controls.append(control.describe(cmd))
+            if cmd["op"] == "set":
+                value = cmd["value"]
+                self.sim.set_parameter(cmd["key"], tuple(value) if isinstance(value, list) else value)
+            elif cmd["op"] == "camera" and self.maker is not None:
+                self.maker.renderer.camera_name = cmd["name"]
+            elif cmd["op"] == "color_by" and self.maker is not None:
+                self.maker.renderer.set_quantity(cmd["quantity"])
+            elif cmd["op"] == "pause":
+                self._paused()
+
+    def _paused(self):
+        """Hold until resume: rank 0 watches its commands, then releases the others."""
+        from nodes.zenoh_transport import PeerTimeout
+        step = self.sim.step_index
+        if self.halo.rank == 0:
+            held = []
+            while True:
+                self.endpoint.check()
+                cmds = self.endpoint.take_commands()
+                if any(c["op"] == "resume" for c in cmds):
+                    held += [c for c in cmds if c["op"] not in ("pause", "resume")]
+                    break
+                held += [c for c in cmds if c["op"] != "pause"]
+                time.sleep(0.05)
+            self.endpoint.commands[:0] = held  # announced at the next step
+            for q in self.halo.others:
+                self.endpoint.send(q, (step, "resume"), {})
+        else:
+            while True:
+                try:
+                    self.endpoint.wait(0, (step, "resume"))
+                    break
+                except PeerTimeout:
+                    continue  # paused as long as rank 0 says; a lost peer still raises PeerLost
+        log.info("peer %d: resumed after step %d", self.halo.rank, step)
+
+
 def run_peer(scene, rank: int, world: int, endpoint, out: Path | None, precision: str | None,
              steps: int | None, until: float | None, progress: bool, startup_timeout: float = 120.0,
              frames: bool = True) -> dict | None:
@@ -92,12 +161,15 @@ def run_peer(scene, rank: int, world: int, endpoint, out: Path | None, precision
     endpoint.wait_for_peers(startup_timeout)
     recorder = PeerRecorder(sim, endpoint)
     maker = FrameMaker(scene, domain_box(scene), rank, world, sim.n_particles) if frames and scene.render.every else None
+    controls = Controls(sim, halo, endpoint, maker)
 
     def on_step(seconds):
         recorder(seconds)
+        controls.after_step()
         if maker is not None and maker.due(sim) and endpoint.viewer_listening():
             frame, stats, points = maker.make(sim, sum(endpoint.bytes_sent.values()))
-            endpoint.publish_frame(sim.step_index, "frame", frame_arrays(frame, stats, points))
+            with sim.timers("publish"):
+                endpoint.publish_frame(sim.step_index, "frame", frame_arrays(frame, stats, points))
 
     loop = advance(sim, halo, scene, steps, until, progress and rank == 0, on_step=on_step)
     v = sim.refresh(halo)
@@ -114,7 +186,7 @@ def run_peer(scene, rank: int, world: int, endpoint, out: Path | None, precision
         "neighbours_sum": int(sim.grid.counts[:n].sum()), "neighbours_max": int(sim.grid.counts[:n].max(initial=0)),
         "neighbours_max_over_run": sim.max_neighbours, "rebalances": halo.rebalances,
         "dropped_messages": endpoint.dropped, "threads": numba.get_num_threads(),
-        "cuts": [list(c) for c in halo.dec.cuts],
+        "cuts": [list(c) for c in halo.dec.cuts], "controls": controls.applied,
     }
     final = {"id": s.id[:n], "x": s.x[:n], "v": np.ascontiguousarray(v[:n]), "rho": s.rho[:n],
              "stats": np.frombuffer(json.dumps(stats).encode(), dtype=np.uint8)}
@@ -195,6 +267,7 @@ def peer_summary(peers: list[dict], base: dict, world: int, itemsize: int) -> di
             "bytes_sent": p["bytes_sent"], "array_bytes_sent": p["array_bytes_sent"],
             "stages": {k: v["total_s"] for k, v in p["stages"].items()},
             "rebalances": p["rebalances"], "dropped_messages": p["dropped_messages"], "cuts": p["cuts"],
+            "controls": p["controls"],
         } for p in peers],
     }
     if steps:

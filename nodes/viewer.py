@@ -135,6 +135,8 @@ class Viewer:
         for f in frames:
             if f.w and f.h:
                 rec.log(f"peers/{f.rank}/rgb", rr.Image(f.rgb))
+        for text in stats[ranks[0]].get("controls", []):  # every peer applied it; log it once
+            rec.log("control", rr.TextLog(text, level="INFO"))
         missing = sorted(set(range(self.world)) - set(ranks))
         if missing:
             self.incomplete += 1

@@ -5,6 +5,7 @@ Key expressions (every one under ``sph/<run>/``, so two runs on one network neve
     sph/<run>/halo/<dest>/<source>     halo messages from peer <source> to peer <dest>
     sph/<run>/alive/<rank>             liveliness token of peer <rank> (gone = the peer died)
     sph/<run>/frame/<rank>             framelets (and rank 0's "end") from peer <rank> to any viewer
+    sph/<run>/control                  commands from a controller (source -2) to rank 0 (nodes/control.py)
 
 A message is a small self-describing header and the raw bytes of numpy arrays; nothing is ever
 unpickled from the network:
@@ -73,6 +74,13 @@ def frame_all(run: str) -> str:
     return f"sph/{run}/frame/*"
 
 
+CONTROLLER = -2  # the source rank of control commands
+
+
+def control_key(run: str) -> str:
+    return f"sph/{run}/control"
+
+
 def rank_from_key(key: str) -> int:
     """The last segment of a key expression as a rank (``alive`` and ``halo`` keys)."""
     return int(str(key).rsplit("/", 1)[-1])
@@ -99,9 +107,9 @@ def encode(run: str, step: int, phase: str, source: int, dest: int, arrays: dict
     return b"".join([_PREFIX.pack(MAGIC, VERSION, len(header)), header] + chunks)
 
 
-def decode(data: bytes, run: str, dest: int, world: int) -> tuple[int, tuple, dict]:
+def decode(data: bytes, run: str, dest: int, world: int, sources=None) -> tuple[int, tuple, dict]:
     """(source, (step, phase), arrays) of a message for peer ``dest`` of run ``run`` with ``world``
-    peers; raises WireError if anything does not fit."""
+    peers (or from one of ``sources``); raises WireError if anything does not fit."""
     view = memoryview(data)
     if len(view) < _PREFIX.size:
         raise WireError(f"message of {len(view)} bytes is shorter than the {_PREFIX.size}-byte prefix")
@@ -122,7 +130,10 @@ def decode(data: bytes, run: str, dest: int, world: int) -> tuple[int, tuple, di
         raise WireError(f"message of run {msg_run!r}, this is run {run!r}")
     if msg_dest != dest:
         raise WireError(f"message for peer {msg_dest!r} delivered to peer {dest}")
-    if not (isinstance(source, int) and 0 <= source < world and source != dest):
+    if sources is not None:
+        if source not in sources:
+            raise WireError(f"source {source!r} is not one of {sorted(sources)}")
+    elif not (isinstance(source, int) and 0 <= source < world and source != dest):
         raise WireError(f"source rank {source!r} is not another peer of this {world}-peer run")
     if not (isinstance(step, int) and step >= -1) or not (isinstance(phase, str) and _NAME.match(phase)):
         raise WireError(f"bad step {step!r} or phase {phase!r}")

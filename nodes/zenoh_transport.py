@@ -77,6 +77,9 @@ class ZenohEndpoint:
         self._sub = self.session.declare_subscriber(wire.inbox_key(self.run, rank), self._on_message)
         self._live_sub = self.session.liveliness().declare_subscriber(wire.alive_all(self.run), self._on_alive,
                                                                       history=True)
+        self.commands = []        # rank 0: control commands received (nodes/control.py), not yet announced
+        if rank == 0:
+            self._control_sub = self.session.declare_subscriber(wire.control_key(self.run), self._on_control)
         # declared after the inbox subscriber: whoever sees this token can already reach us
         self._token = self.session.liveliness().declare_token(wire.alive_key(self.run, rank))
 
@@ -97,6 +100,23 @@ class ZenohEndpoint:
                 return
             self._mail[key] = arrays
             self._cv.notify_all()
+
+    def _on_control(self, sample):
+        from nodes import control
+        try:
+            _, _, arrays = wire.decode(sample.payload.to_bytes(), self.run, 0, self.world, sources=(wire.CONTROLLER,))
+            command = control.parse(bytes(arrays["command"]).decode())
+        except (wire.WireError, ValueError, KeyError, UnicodeDecodeError) as e:
+            log.warning("peer 0: ignored a control message: %s", e)
+            return
+        with self._cv:
+            self.commands.append(command)
+            self._cv.notify_all()
+
+    def take_commands(self) -> list:
+        with self._cv:
+            out, self.commands = self.commands, []
+        return out
 
     def _on_alive(self, sample):
         try:

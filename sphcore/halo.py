@@ -21,6 +21,8 @@ just crossed a cut can be a third peer's ghost; only its new owner knows to send
 """
 from __future__ import annotations
 
+import json
+
 import numpy as np
 
 from sphcore.state import ParticleState
@@ -49,6 +51,15 @@ class NullHalo:
 NULL_HALO = NullHalo()
 
 
+def encode_commands(commands: list) -> np.ndarray:
+    """Control commands (plain JSON-able dicts, nodes/control.py) as bytes for a halo message."""
+    return np.frombuffer(json.dumps(commands).encode(), dtype=np.uint8)
+
+
+def decode_commands(array: np.ndarray) -> list:
+    return json.loads(bytes(array).decode())
+
+
 class PeerHalo:
     """Halo of peer ``rank`` in decomposition ``dec`` over ``transport``."""
 
@@ -60,6 +71,8 @@ class PeerHalo:
         self._compute_s = 0.0    # the stage timers' total at the last rebalance
         self._set_decomposition(dec)
         self.bytes_sent = {"positions": 0, "fields": 0, "reduce": 0}  # array bytes per phase (no headers)
+        self.control_source = None  # rank 0: a callable returning commands to announce (nodes/control.py)
+        self.announced = []          # commands announced in this step's reduction, applied after it
         self.rebalances = 0
         self.ghosts_received = 0  # ghost rows received over the run (the halo's minimum traffic)
         self.migrated = 0         # particles this peer handed to another owner over the run
@@ -205,14 +218,22 @@ class PeerHalo:
                 a[rows] = msg[k]
 
     def reduce_max(self, sim, stats):
+        """Global max of |v|^2, |a|^2, compression and the NaN count; rank 0's message also carries
+        any control commands, so every peer learns them in the same step."""
         step = sim.step_index
         mine = np.array(stats, dtype=np.float64)
-        others = self.others
-        for q in others:
-            self._send(q, (step, "reduce"), {"stats": mine}, "reduce")
+        commands = self.control_source() if (self.rank == 0 and self.control_source is not None) else []
+        message = {"stats": mine}
+        if commands:
+            message["control"] = encode_commands(commands)
+        for q in self.others:
+            self._send(q, (step, "reduce"), message, "reduce")
         result = mine.copy()
-        for q in others:
+        self.announced = list(commands)
+        for q in self.others:
             msg = yield from self.transport.recv(q, (step, "reduce"))
             result[:3] = np.maximum(result[:3], msg["stats"][:3])
             result[3] += msg["stats"][3]
+            if q == 0 and "control" in msg:
+                self.announced = decode_commands(msg["control"])
         return result[0], result[1], result[2], int(result[3])

@@ -301,9 +301,9 @@ def draw_box(camera: Camera, lo, hi, rgb, depth, dim: int = 3):
         rgb[sy[visible], sx[visible]] = OUTLINE
 
 
-def default_range(quantity: str, scene, world: int = 1) -> tuple[float, float]:
+def default_range(quantity: str, scene, world: int = 1, scene_range: bool = True) -> tuple[float, float]:
     lo, hi = scene.render.range
-    if (lo, hi) != (0.0, 0.0):
+    if scene_range and (lo, hi) != (0.0, 0.0):
         return lo, hi
     rho0, c0 = scene.fluid.rest_density, scene.sph.sound_speed
     return {"speed": (0.0, 0.1 * c0), "density": (0.98 * rho0, 1.02 * rho0),
@@ -326,6 +326,11 @@ class SceneRenderer:
         self.radius = r.radius * scene.particles.spacing
         self.quantity = r.color_by
         self.range = default_range(r.color_by, scene, world)
+
+    def set_quantity(self, quantity: str):
+        """Colour by another quantity (the scene's render.range applies to its own color_by only)."""
+        self.quantity = quantity
+        self.range = default_range(quantity, self.scene, self.world, quantity == self.scene.render.color_by)
 
     @property
     def camera(self) -> Camera:

@@ -6,6 +6,7 @@ optional terms appear in the list only when the scene enables them.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -103,6 +104,26 @@ class Simulation:
         self.last_limit = ""
         self.prm_now = self.prm
         self.timers = StageTimers()
+
+    def set_parameter(self, key: str, value):
+        """Change a run-time settable value (nodes/control.py SETTABLE: body forces, viscosity, wall
+        friction/restitution) from the next step on; ``value`` is already validated."""
+        section, name = key.split(".")
+        self.scene = dataclasses.replace(self.scene, **{section: dataclasses.replace(getattr(self.scene, section),
+                                                                                  **{name: value})})
+        p, f = self.prm, self.dtype.type
+        if key in ("forces.external", "forces.gravity"):
+            self.prm = p._replace(**{f"{name}_{a}": f(value[i]) for i, a in enumerate("xyz")})
+        elif key == "sph.alpha":
+            self.prm = p._replace(alpha=f(value))
+        elif key == "sph.nu":
+            if self.viscosity in (Viscosity.MULLER, Viscosity.MORRIS):
+                self.nu = value
+                self.prm = p._replace(mu=f(self.scene.fluid.rest_density * value))
+        elif key in ("boundary.friction", "boundary.restitution"):
+            self.prm = p._replace(**{name: f(value)})
+        else:
+            raise ValueError(f"{key} cannot be changed during a run")
 
     @staticmethod
     def grid_for(scene: Scene):

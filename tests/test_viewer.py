@@ -83,3 +83,30 @@ def test_framelet_messages_round_trip_and_reject_mismatched_planes():
     arrays["rect"] = np.array([1, 2, 6, 2])
     with pytest.raises(ValueError, match="rectangle"):
         frame_from_arrays(3, arrays)
+
+
+def test_a_viewer_joins_a_running_run_and_sees_the_same_frames(tmp_path):
+    import re
+
+    from test_peers import Lines, sph
+    # Given a 2-peer run (with its own recording viewer)
+    p = sph("run", "configs/dam_break.toml", "--peers", "2", "--steps", "900", "--out", str(tmp_path / "run"),
+            "--set", "particles.spacing=0.04", "--set", "run.log_every=50", "--set", "render.every=50")
+    log = Lines(p.stderr)
+    log.wait_for("peer 0 sph.run INFO step 100", timeout=120)
+    launch = next(line for line in log.lines if "endpoints" in line)
+    run_id = re.search(r"run (\w+):", launch).group(1)
+    endpoints = re.findall(r"(tcp/[\d.]+:\d+)", launch)
+    # When a second viewer joins by connecting to the peers' endpoints
+    joined = subprocess.run([sys.executable, "-m", "launch.cli", "viewer", "configs/dam_break.toml", "--run-id",
+                             run_id, *sum((["--connect", e] for e in endpoints), []), "--record",
+                             str(tmp_path / "joined.rrd"), "--set", "particles.spacing=0.04",
+                             "--set", "render.every=50", "--idle-timeout", "60"],
+                            cwd=ROOT, capture_output=True, text=True, timeout=300)
+    # Then the run is undisturbed, and the joined viewer recorded the later frames identically
+    assert p.wait(timeout=300) == 0, log.text()
+    assert joined.returncode == 0, joined.stderr
+    mine, theirs = images(tmp_path / "joined.rrd"), images(tmp_path / "run" / "run.rrd")
+    assert len(mine) >= 3 and max(mine) == 900 and min(mine) > 100
+    for step, im in mine.items():
+        assert np.array_equal(im, theirs[step]), step
