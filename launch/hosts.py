@@ -22,7 +22,7 @@ import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 
-from launch.local import _stop, _watch, new_run_id
+from launch.local import _stop, _watch, new_run_id, run_options
 
 log = logging.getLogger("sph.launch")
 
@@ -77,14 +77,7 @@ def remote_command(host: Host, rank: int, hosts: list[Host], run_id: str, config
         cmd += ["--threads", str(threads)]
     if args.out is not None:
         cmd += ["--out", str(args.out)]
-    if args.precision:
-        cmd += ["--precision", args.precision]
-    if args.steps is not None:
-        cmd += ["--steps", str(args.steps)]
-    if args.until is not None:
-        cmd += ["--until", repr(args.until)]
-    for o in args.overrides:
-        cmd += ["--set", o]
+    cmd += run_options(args)
     if args.quiet or rank != 0:
         cmd.append("--quiet")
     return f"cd {shlex.quote(remote_dir)} && exec " + " ".join(shlex.quote(c) for c in cmd)

@@ -52,6 +52,12 @@ def peer_command(config: Path, rank: int, world: int, run_id: str, listen: str, 
            "--run-id", run_id, "--listen", listen, "--out", str(out), "--timeout", str(args.timeout)]
     for ep in connect:
         cmd += ["--connect", ep]
+    return cmd + run_options(args) + (["--quiet"] if args.quiet else [])
+
+
+def run_options(args) -> list[str]:
+    """The `sph run` options every peer of the run must get identically."""
+    cmd = []
     if args.precision:
         cmd += ["--precision", args.precision]
     if args.steps is not None:
@@ -60,8 +66,6 @@ def peer_command(config: Path, rank: int, world: int, run_id: str, listen: str, 
         cmd += ["--until", repr(args.until)]
     for o in args.overrides:
         cmd += ["--set", o]
-    if args.quiet:
-        cmd.append("--quiet")
     return cmd
 
 

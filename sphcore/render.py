@@ -119,19 +119,22 @@ def _project(x, basis, focal, width, height, radius, sx, sy, depth, rpx):
         rpx[i] = r
 
 
+@njit(inline="always")
+def _tile_range(x, y, r, tiles_x, tiles_y):
+    """First and last tile column and row touched by a disk of radius r at (x, y)."""
+    return (max(int(math.floor((x - r) / TILE)), 0), min(int(math.floor((x + r) / TILE)), tiles_x - 1),
+            max(int(math.floor((y - r) / TILE)), 0), min(int(math.floor((y + r) / TILE)), tiles_y - 1))
+
+
 @njit(cache=True)
 def _bin_tiles(sx, sy, rpx, tiles_x, tiles_y):
     """Particles touching each tile: (start (tiles+1,), list) — a counting sort of (tile, particle)."""
     n_tiles = tiles_x * tiles_y
     count = np.zeros(n_tiles + 1, dtype=np.int64)
     for i in range(sx.shape[0]):
-        r = rpx[i]
-        if r <= 0.0:
+        if rpx[i] <= 0.0:
             continue
-        tx0 = max(int(math.floor((sx[i] - r) / TILE)), 0)
-        tx1 = min(int(math.floor((sx[i] + r) / TILE)), tiles_x - 1)
-        ty0 = max(int(math.floor((sy[i] - r) / TILE)), 0)
-        ty1 = min(int(math.floor((sy[i] + r) / TILE)), tiles_y - 1)
+        tx0, tx1, ty0, ty1 = _tile_range(sx[i], sy[i], rpx[i], tiles_x, tiles_y)
         for ty in range(ty0, ty1 + 1):
             for tx in range(tx0, tx1 + 1):
                 count[ty * tiles_x + tx + 1] += 1
@@ -140,13 +143,9 @@ def _bin_tiles(sx, sy, rpx, tiles_x, tiles_y):
     items = np.empty(count[n_tiles], dtype=np.int64)
     fill = count[:n_tiles].copy()
     for i in range(sx.shape[0]):
-        r = rpx[i]
-        if r <= 0.0:
+        if rpx[i] <= 0.0:
             continue
-        tx0 = max(int(math.floor((sx[i] - r) / TILE)), 0)
-        tx1 = min(int(math.floor((sx[i] + r) / TILE)), tiles_x - 1)
-        ty0 = max(int(math.floor((sy[i] - r) / TILE)), 0)
-        ty1 = min(int(math.floor((sy[i] + r) / TILE)), tiles_y - 1)
+        tx0, tx1, ty0, ty1 = _tile_range(sx[i], sy[i], rpx[i], tiles_x, tiles_y)
         for ty in range(ty0, ty1 + 1):
             for tx in range(tx0, tx1 + 1):
                 t = ty * tiles_x + tx
