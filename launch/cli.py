@@ -59,7 +59,8 @@ def build_parser() -> argparse.ArgumentParser:
         description="Run a scene. Writes OUT/summary.json (timings, counts, leaks), OUT/final.npz "
                     "(id, x, v, rho sorted by id) and OUT/scene.toml (the resolved scene) when the run ends.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    run.add_argument("config", type=Path, help="scene file (TOML), e.g. configs/dam_break.toml")
+    run.add_argument("config", type=Path, nargs="?", default=None,
+                     help="scene file (TOML), e.g. configs/dam_break.toml (not with --resume)")
     length = run.add_mutually_exclusive_group()
     length.add_argument("--steps", type=_positive_int, default=None,
                         help="number of steps (default: the scene's time.steps)")
@@ -80,6 +81,11 @@ def build_parser() -> argparse.ArgumentParser:
                           "block of the domain ([decomposition] in the scene)")
     run.add_argument("--timeout", type=_positive_float, default=120.0,
                      help="seconds a peer waits for a message before giving up (names the missing peer)")
+    run.add_argument("--checkpoint-every", type=_positive_int, default=None, metavar="K",
+                     help="write a checkpoint to OUT/checkpoints every K steps (default: output.checkpoint_every)")
+    run.add_argument("--resume", type=Path, default=None, metavar="DIR",
+                     help="continue from the newest checkpoint of DIR (a run's OUT folder, its checkpoints/ or "
+                          "a step_* folder), with the scene saved there; --steps/--until count from step 0")
     run.add_argument("--hosts", type=Path, default=None, metavar="FILE",
                      help="run one peer per line of FILE ('HOST PORT [THREADS]') over ssh instead of on this "
                           "machine; see docs/USAGE.md")
@@ -106,7 +112,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "to the others' (at least to every lower rank), e.g. on host B: sph peer dam.toml --rank 1 "
                     "--world 2 --run-id demo --listen tcp/0.0.0.0:7448 --connect tcp/hostA:7447. Rank 0 "
                     "gathers the result and writes OUT on its machine. See docs/USAGE.md.")
-    peer.add_argument("config", type=Path, help="scene file (TOML), the same on every peer")
+    peer.add_argument("config", type=Path, nargs="?", default=None,
+                      help="scene file (TOML), the same on every peer (not with --resume)")
     peer.add_argument("--rank", type=_positive_int, required=True, help="this peer's rank, 0..WORLD-1")
     peer.add_argument("--world", type=_positive_int, required=True, help="number of peers in the run")
     peer.add_argument("--run-id", required=True,
@@ -127,6 +134,11 @@ def build_parser() -> argparse.ArgumentParser:
     peer.add_argument("--timeout", type=_positive_float, default=120.0,
                       help="seconds to wait for the other peers to join, and for each message (default: 120)")
     peer.add_argument("--quiet", action="store_true", help="no progress output")
+    peer.add_argument("--checkpoint-every", type=_positive_int, default=None, metavar="K",
+                      help="write a checkpoint part every K steps into OUT/checkpoints (the same folder for "
+                           "every peer: a shared file system across machines)")
+    peer.add_argument("--resume", type=Path, default=None, metavar="DIR",
+                      help="continue from the newest checkpoint of DIR (written by any number of peers)")
     peer.add_argument("--no-frames", action="store_true",
                       help="never render framelets (by default: every render.every steps while a viewer listens)")
 
@@ -270,8 +282,27 @@ def _check_peers(scene, n_peers: int):
         raise UsageError(f"--peers {n_peers}: {e}") from None
 
 
+def _scene_for_run(args):
+    """The scene and the checkpoint to resume from (or None)."""
+    from sphcore.scene import load_scene, scene_from_dict
+    if args.resume is None:
+        if args.config is None:
+            raise UsageError("give a scene file (e.g. configs/dam_break.toml) or --resume DIR")
+        return load_scene(args.config, args.overrides), None
+    from sphcore.checkpoint import CheckpointError, load
+    if args.config is not None or args.overrides:
+        raise UsageError("--resume uses the scene saved with the checkpoint: give no scene file and no --set")
+    try:
+        ckpt = load(args.resume)
+    except CheckpointError as e:
+        raise UsageError(f"--resume: {e}") from None
+    if args.precision and args.precision != ckpt.manifest["precision"]:
+        raise UsageError(f"--precision {args.precision}: the checkpoint is {ckpt.manifest['precision']}")
+    scene = scene_from_dict(ckpt.manifest["scene"], source=str(ckpt.path))
+    return scene, ckpt
+
+
 def _cmd_run(args) -> int:
-    from sphcore.scene import load_scene
     if args.peers < 1:
         raise UsageError(f"--peers {args.peers}: at least one peer is needed")
     if args.backend != "cpu":
@@ -282,7 +313,9 @@ def _cmd_run(args) -> int:
         raise UsageError(f"--record {str(args.record)!r}: the file name must end in .rrd")
     if args.hosts is not None:
         from launch.hosts import read_hosts, run_hosts
-        scene = load_scene(args.config, args.overrides)
+        if args.resume is not None:
+            raise UsageError("--resume with --hosts: start the peers with sph peer --resume (see docs/USAGE.md)")
+        scene, _ = _scene_for_run(args)
         try:
             hosts = read_hosts(args.hosts)
         except ValueError as e:
@@ -292,18 +325,32 @@ def _cmd_run(args) -> int:
         _check_peers(scene, len(hosts))
         return run_hosts(args.config, args.hosts, args)
     _check_threads(args.threads)
-    scene = load_scene(args.config, args.overrides)
+    scene, ckpt = _scene_for_run(args)
     out = _output_folder(args, scene)
     if args.peers > 1:
         _check_peers(scene, args.peers)
         from launch.local import run_local_peers
-        code = run_local_peers(args.config, args.peers, out, args, viewer=viewer_options(args, scene, out))
+        config = args.config
+        if ckpt is not None:  # the viewer reads the checkpoint's scene from a file
+            import tempfile
+
+            import tomli_w
+            tmp = tempfile.NamedTemporaryFile("w", suffix=".toml", delete=False)
+            tmp.write(tomli_w.dumps(ckpt.manifest["scene"]))
+            tmp.close()
+            config = Path(tmp.name)
+        try:
+            code = run_local_peers(config, args.peers, out, args, viewer=viewer_options(args, scene, out))
+        finally:
+            if ckpt is not None:
+                config.unlink(missing_ok=True)
         if code == 0 and not args.quiet:
             _print_done(out)
         return code
     from launch.run import run_scene
-    summary = run_scene(scene, out, args.precision, args.steps, args.until, args.threads, progress=not args.quiet,
-                        viewer=viewer_options(args, scene, out))
+    summary = run_scene(scene, out, args.precision or (ckpt.manifest["precision"] if ckpt else None), args.steps,
+                        args.until, args.threads, progress=not args.quiet, viewer=viewer_options(args, scene, out),
+                        resume=ckpt, checkpoint_every=args.checkpoint_every)
     if not args.quiet:
         _print_done(out, summary)
     return 0
@@ -405,7 +452,6 @@ def _print_done(out: Path, summary: dict | None = None):
 
 
 def _cmd_peer(args) -> int:
-    from sphcore.scene import load_scene
     if args.world < 1 or args.rank >= args.world:
         raise UsageError(f"--rank {args.rank} --world {args.world}: need 0 <= rank < world")
     if not args.listen and not args.connect:
@@ -419,8 +465,8 @@ def _cmd_peer(args) -> int:
         if "/" not in ep:
             raise UsageError(f"endpoint {ep!r}: expected PROTOCOL/ADDRESS:PORT, e.g. tcp/127.0.0.1:7447")
     _check_threads(args.threads)
-    scene = load_scene(args.config, args.overrides)
-    out = _output_folder(args, scene) if args.rank == 0 else None
+    scene, ckpt = _scene_for_run(args)
+    out = _output_folder(args, scene)
     _check_peers(scene, args.world)
     if args.threads:
         import numba
@@ -434,8 +480,10 @@ def _cmd_peer(args) -> int:
     except Exception as e:  # zenoh raises ZError for endpoints it cannot use
         raise UsageError(f"cannot open Zenoh with --listen {args.listen} --connect {args.connect}: {e}") from None
     try:
-        run_peer(scene, args.rank, args.world, endpoint, out, args.precision, args.steps, args.until,
-                 progress=not args.quiet, startup_timeout=args.timeout, frames=not args.no_frames)
+        run_peer(scene, args.rank, args.world, endpoint, out if args.rank == 0 else None,
+                 args.precision or (ckpt.manifest["precision"] if ckpt else None), args.steps, args.until,
+                 progress=not args.quiet, startup_timeout=args.timeout, frames=not args.no_frames, resume=ckpt,
+                 checkpoint_every=args.checkpoint_every, checkpoint_root=out / "checkpoints")
     finally:
         endpoint.close()
     return 0

@@ -48,8 +48,11 @@ def default_threads(n_peers: int) -> int:
 
 def peer_command(config: Path, rank: int, world: int, run_id: str, listen: str, connect: list[str], out: Path,
                  args) -> list[str]:
-    cmd = [sys.executable, "-m", "launch.cli", "peer", str(config), "--rank", str(rank), "--world", str(world),
+    source = ["--resume", str(args.resume)] if getattr(args, "resume", None) else [str(config)]
+    cmd = [sys.executable, "-m", "launch.cli", "peer", *source, "--rank", str(rank), "--world", str(world),
            "--run-id", run_id, "--listen", listen, "--out", str(out), "--timeout", str(args.timeout)]
+    if getattr(args, "checkpoint_every", None) is not None:
+        cmd += ["--checkpoint-every", str(args.checkpoint_every)]
     for ep in connect:
         cmd += ["--connect", ep]
     return cmd + run_options(args) + (["--quiet"] if args.quiet else [])
@@ -71,7 +74,7 @@ def run_options(args) -> list[str]:
 
 def viewer_command(config: Path, run_id: str, listen: str, n_peers: int, viewer: dict, args) -> list[str]:
     cmd = [sys.executable, "-m", "launch.cli", "viewer", str(config), "--run-id", run_id, "--listen", listen,
-           "--world", str(n_peers)]
+           "--world", str(n_peers)]  # (a resumed run's viewer gets the checkpoint's scene.toml)
     if viewer["record"]:
         cmd += ["--record", str(viewer["record"]), "--stats", str(Path(viewer["record"]).with_name("viewer.json"))]
     if viewer["spawn"]:

@@ -62,15 +62,33 @@ class Progress:
 
 
 def run_scene(scene: Scene, out: Path, precision: str | None, steps: int | None, until: float | None,
-              threads: int | None, progress: bool = True, viewer: dict | None = None) -> dict:
+              threads: int | None, progress: bool = True, viewer: dict | None = None, resume=None,
+              checkpoint_every: int | None = None) -> dict:
     """Run ``scene`` and write summary.json, final.npz and scene.toml into ``out``; return the summary.
     ``viewer`` (record / spawn / serve_web / connect) renders a frame every render.every steps and
-    logs it to Rerun from this process (a single peer needs no compositing over the network)."""
+    logs it to Rerun from this process (a single peer needs no compositing over the network).
+    ``resume`` (a loaded Checkpoint) continues from it; checkpoints are written every
+    ``checkpoint_every`` steps (default: the scene's output.checkpoint_every)."""
+    from sphcore import checkpoint
     if threads:
         numba.set_num_threads(threads)
     t_start = time.perf_counter()
     sim = Simulation(scene, precision)
+    if resume is not None:
+        checkpoint.restore(sim, resume)
+        log.info("resumed from %s at step %d, t = %.6g s", resume.path, sim.step_index, sim.t)
     t_setup = time.perf_counter() - t_start
+    every = scene.output.checkpoint_every if checkpoint_every is None else checkpoint_every
+    hooks = []
+    if every:
+        root = out / "checkpoints"
+
+        def save():
+            if sim.step_index % every == 0:
+                part = checkpoint.write_part(root, sim.step_index, 0, sim)
+                checkpoint.commit(root, sim.step_index, checkpoint.sim_info(sim), resolved_scene(scene, sim), [part],
+                                  scene.output.checkpoint_keep)
+        hooks.append(save)
     log.info("%s: %d particles, %s, %d numba threads", scene.scene.name, sim.n_particles, sim.precision,
              numba.get_num_threads())
     on_step, view = None, None
@@ -86,9 +104,14 @@ def run_scene(scene: Scene, out: Path, precision: str | None, steps: int | None,
         view = Viewer(scene, box, rec, 1, sim.n_particles)
         maker = FrameMaker(scene, box, 0, 1, sim.n_particles)
 
-        def on_step(seconds):
+        def frame():
             if maker.due(sim):
                 view.add(sim.step_index, 0, *maker.make(sim))
+        hooks.append(frame)
+    if hooks:
+        def on_step(seconds):
+            for hook in hooks:
+                hook()
 
     try:
         loop = advance(sim, NULL_HALO, scene, steps, until, progress, on_step=on_step)
@@ -106,6 +129,13 @@ def run_scene(scene: Scene, out: Path, precision: str | None, steps: int | None,
     return summary
 
 
+def resolved_scene(scene: Scene, sim) -> dict:
+    """The scene as it ran: every key resolved, --precision included, run-time changes included."""
+    resolved = sim.scene.to_dict()
+    resolved["run"]["precision"] = sim.precision
+    return resolved
+
+
 def write_outputs(out: Path, scene: Scene, precision: str, final: dict, summary: dict):
     out.mkdir(parents=True, exist_ok=True)
     resolved = scene.to_dict()
@@ -118,7 +148,8 @@ def write_outputs(out: Path, scene: Scene, precision: str, final: dict, summary:
 def advance(sim: Simulation, halo, scene: Scene, steps: int | None, until: float | None, progress: bool,
             on_step=None) -> dict:
     """Step ``sim`` (over ``halo``) for ``steps`` steps or until simulated time ``until`` (else the
-    scene's time.steps); ``on_step(seconds)`` is called after each timed step. Returns the loop
+    scene's time.steps; a resumed run counts from its checkpoint's step); ``on_step(seconds)`` is
+    called after each step (seconds None for the first, untimed one). Returns the loop
     timings: the first step (numba compilation or cache load) is timed apart from the loop, so
     that particle-steps/s measures stepping only."""
     target_steps = steps if steps is not None else (None if until is not None else scene.time.steps)
@@ -127,8 +158,11 @@ def advance(sim: Simulation, halo, scene: Scene, steps: int | None, until: float
         return (until - sim.t) if until is not None else None
 
     t0 = time.perf_counter()
-    if target_steps != 0 and (until is None or sim.t < until):
+    if target_steps != 0 and (until is None or sim.t < until) and (target_steps is None
+                                                                    or sim.step_index < target_steps):
         sim.step(cap(), halo)
+        if on_step is not None:
+            on_step(None)  # not timed: this step compiled the kernels
     t_first = time.perf_counter() - t0
     sim.timers.reset()
     steps_in_loop = 0

@@ -60,7 +60,10 @@ class PeerRecorder:
         self.particles, self.step_s, self.wait_s = [], [], []
         self._waited = 0.0
 
-    def __call__(self, seconds: float):
+    def __call__(self, seconds: float | None):
+        if seconds is None:  # the first step (compilation): not part of the statistics
+            self._waited = sum(self.endpoint.wait_s.values())
+            return
         waited = sum(self.endpoint.wait_s.values())
         self.particles.append(self.sim.state.n_owned)
         self.step_s.append(seconds)
@@ -140,17 +143,23 @@ class Controls:
 
 def run_peer(scene, rank: int, world: int, endpoint, out: Path | None, precision: str | None,
              steps: int | None, until: float | None, progress: bool, startup_timeout: float = 120.0,
-             frames: bool = True) -> dict | None:
+             frames: bool = True, resume=None, checkpoint_every: int | None = None,
+             checkpoint_root: Path | None = None) -> dict | None:
     """Run peer ``rank`` of ``world`` to the end; rank 0 writes ``out`` and returns the summary.
     With ``frames`` (and render.every > 0) the peer renders and publishes a framelet every
-    render.every steps while a viewer is subscribed."""
+    render.every steps while a viewer is subscribed. ``resume``: a loaded checkpoint (any number of
+    peers may have written it); checkpoints go to ``checkpoint_root`` every ``checkpoint_every``
+    steps (default output.checkpoint_every), one part per peer, committed by rank 0."""
     import numba
 
-    from launch.run import advance, make_summary, write_outputs
+    from launch.run import advance, make_summary, resolved_scene, write_outputs
     from nodes.frames import FrameMaker, domain_box
     from nodes.viewer import frame_arrays
     t_start = time.perf_counter()
+    from sphcore import checkpoint
     sim = Simulation(scene, precision)
+    if resume is not None:
+        checkpoint.restore(sim, resume)
     dec = decomposition_for(scene, sim.grid, world, sim.state.x)
     take_block(sim, dec, rank)
     halo = PeerHalo(dec, rank, endpoint, scene.decomposition.balance_every,
@@ -162,10 +171,24 @@ def run_peer(scene, rank: int, world: int, endpoint, out: Path | None, precision
     recorder = PeerRecorder(sim, endpoint)
     maker = FrameMaker(scene, domain_box(scene), rank, world, sim.n_particles) if frames and scene.render.every else None
     controls = Controls(sim, halo, endpoint, maker)
+    every = scene.output.checkpoint_every if checkpoint_every is None else checkpoint_every
+
+    def save():
+        step = sim.step_index
+        part = checkpoint.write_part(checkpoint_root, step, rank, sim)
+        if rank != 0:
+            endpoint.send(0, (step, "ckpt"), {"entry": np.frombuffer(json.dumps(part).encode(), dtype=np.uint8)})
+            return
+        parts = [part] + [json.loads(bytes(endpoint.wait(q, (step, "ckpt"))["entry"]).decode())
+                          for q in range(1, world)]
+        checkpoint.commit(checkpoint_root, step, checkpoint.sim_info(sim), resolved_scene(scene, sim), parts,
+                          scene.output.checkpoint_keep)
 
     def on_step(seconds):
         recorder(seconds)
         controls.after_step()
+        if every and sim.step_index % every == 0:
+            save()
         if maker is not None and maker.due(sim) and endpoint.viewer_listening():
             frame, stats, points = maker.make(sim, sum(endpoint.bytes_sent.values()))
             with sim.timers("publish"):

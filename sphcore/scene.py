@@ -203,10 +203,21 @@ class Render:
     cameras: list = spec([], "extra named cameras ([[render.cameras]])")
 
 
+@dataclass(frozen=True)
+class Output:
+    checkpoint_every: int = spec(0, "write a checkpoint every this many steps (0 = none; --checkpoint-every)",
+                                 range=(0, 10**9))
+    checkpoint_keep: int = spec(2, "how many of the newest checkpoints to keep", range=(1, 10**6))
+    vtk_every: int = spec(0, "write ParaView files (.vtp particles, .pvd series) every this many steps "
+                             "(0 = none; --vtk K)", range=(0, 10**9))
+    surface: bool = spec(False, "with vtk_every: also extract the fluid surface (marching cubes) per frame")
+    surface_resolution: float = spec(0.5, "surface sampling grid step, in particle spacings", range=(0.1, 4.0))
+
+
 SECTIONS: dict[str, type] = {
     "scene": SceneInfo, "particles": Particles, "fluid": Fluid, "sph": SPH, "terms": Terms, "forces": Forces,
     "time": Time, "domain": Domain, "obstacles": Obstacle, "boundary": Boundary, "run": Run,
-    "decomposition": DecompositionSection, "render": Render,
+    "decomposition": DecompositionSection, "render": Render, "output": Output,
 }
 LIST_ITEMS: dict[str, type] = {"fluid.blocks": Block, "domain.planes": Plane, "obstacles": Obstacle,
                                "render.cameras": RenderCamera}
@@ -227,6 +238,7 @@ class Scene:
     run: Run
     decomposition: DecompositionSection = DecompositionSection()
     render: Render = Render()
+    output: Output = Output()
     source: str = ""
 
     @property

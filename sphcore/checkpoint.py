@@ -1,0 +1,170 @@
+"""Checkpoints: the full state of a run at the end of a step, from which a run continues exactly.
+
+Layout (one folder per checkpoint, under OUT/checkpoints/):
+
+    step_00000300/peer_0000.npz     a peer's owned particles: id, x, v, m (its dtype)
+    step_00000300/peer_0001.npz     ...one file per peer of the run that wrote it
+    step_00000300/manifest.json     format, step, t, dt, dt_prev, counters, precision, the resolved
+                                    scene, the parts with their particle counts and SHA-256
+    latest                          the name of the newest complete checkpoint folder
+
+Everything a step carries to the next is saved: positions, velocities (half-step velocities for
+leapfrog), masses, ids, t, the step index, dt_prev (leapfrog's combined kick) and the counters
+of summary.json. Density, pressure and accelerations are recomputed by the next step, so they
+are not saved. Every peer writes its own part; rank 0 writes the manifest after all parts are in,
+into a temporary folder that is renamed into place, then rewrites ``latest`` (atomic rename): a
+crash mid-write never leaves a corrupt "latest". A resumed run may use any number of peers: each
+peer reads all parts and keeps the particles of its block.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+FORMAT = "sphfluid-checkpoint-1"
+
+
+class CheckpointError(ValueError):
+    """A checkpoint that is missing, incomplete, corrupt or does not fit the run."""
+
+
+def folder_name(step: int) -> str:
+    return f"step_{step:08d}"
+
+
+def part_name(rank: int) -> str:
+    return f"peer_{rank:04d}.npz"
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def staging(root: Path, step: int) -> Path:
+    """The temporary folder parts of ``step`` are written into (renamed when complete)."""
+    return Path(root) / f".{folder_name(step)}.partial"
+
+
+def write_part(root: Path, step: int, rank: int, sim) -> dict:
+    """Write this peer's owned particles; returns its manifest entry."""
+    folder = staging(root, step)
+    folder.mkdir(parents=True, exist_ok=True)
+    s = sim.state
+    n = s.n_owned
+    path = folder / part_name(rank)
+    tmp = folder / f".{part_name(rank)}.tmp"
+    with open(tmp, "wb") as f:
+        np.savez(f, id=s.id[:n], x=s.x[:n], v=s.v[:n], m=s.m[:n])
+    os.replace(tmp, path)
+    return {"file": part_name(rank), "particles": int(n), "sha256": _sha256(path)}
+
+
+def sim_info(sim) -> dict:
+    return {"step": sim.step_index, "t": sim.t, "dt": sim.dt, "dt_prev": sim.dt_prev, "leaks": sim.leaks,
+            "max_neighbours": sim.max_neighbours, "max_compression": sim.max_compression,
+            "limit_counts": sim.limit_counts, "last_limit": sim.last_limit, "precision": sim.precision,
+            "particles": sim.n_particles}
+
+
+def commit(root: Path, step: int, info: dict, scene_dict: dict, parts: list[dict], keep: int = 2):
+    """All parts of ``step`` are written: add the manifest, rename the folder into place, point
+    ``latest`` at it and remove all but the newest ``keep`` checkpoints."""
+    root = Path(root)
+    folder = staging(root, step)
+    manifest = dict(info, format=FORMAT, scene=scene_dict, parts=parts)
+    tmp = folder / ".manifest.json.tmp"
+    tmp.write_text(json.dumps(manifest, indent=1) + "\n")
+    os.replace(tmp, folder / "manifest.json")
+    final = root / folder_name(step)
+    if final.exists():
+        shutil.rmtree(final)
+    os.replace(folder, final)
+    tmp = root / ".latest.tmp"
+    tmp.write_text(folder_name(step) + "\n")
+    os.replace(tmp, root / "latest")
+    done = sorted(p for p in root.glob("step_*") if p.is_dir())
+    for old in done[:-keep] if keep > 0 else []:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+@dataclass
+class Checkpoint:
+    path: Path
+    manifest: dict
+    arrays: dict  # id, x, v, m of all particles, sorted by id
+
+    @property
+    def step(self) -> int:
+        return int(self.manifest["step"])
+
+
+def resolve(path: Path) -> Path:
+    """A checkpoint folder from a run's OUT folder, its checkpoints/ folder or the folder itself."""
+    path = Path(path)
+    for root in (path / "checkpoints", path):
+        latest = root / "latest"
+        if latest.is_file():
+            return root / latest.read_text().strip()
+    if (path / "manifest.json").is_file():
+        return path
+    raise CheckpointError(f"{str(path)!r}: no checkpoint here (expected OUT/checkpoints/latest, a "
+                          "checkpoints/ folder or a step_* folder with manifest.json)")
+
+
+def load(path: Path) -> Checkpoint:
+    """Read and check a checkpoint; CheckpointError says what is wrong."""
+    folder = resolve(path)
+    try:
+        manifest = json.loads((folder / "manifest.json").read_text())
+    except (OSError, ValueError) as e:
+        raise CheckpointError(f"{folder}/manifest.json: unreadable ({e})") from None
+    if manifest.get("format") != FORMAT:
+        raise CheckpointError(f"{folder}: format {manifest.get('format')!r}, this version reads {FORMAT!r}")
+    parts = []
+    for entry in manifest["parts"]:
+        p = folder / entry["file"]
+        if not p.is_file():
+            raise CheckpointError(f"{folder}: part {entry['file']} is missing")
+        if _sha256(p) != entry["sha256"]:
+            raise CheckpointError(f"{folder}: part {entry['file']} is corrupt (checksum mismatch)")
+        with np.load(p) as z:
+            part = {k: z[k] for k in ("id", "x", "v", "m")}
+        if len(part["id"]) != entry["particles"]:
+            raise CheckpointError(f"{folder}: part {entry['file']} holds {len(part['id'])} particles, the "
+                                  f"manifest says {entry['particles']}")
+        parts.append(part)
+    arrays = {k: np.concatenate([p[k] for p in parts]) for k in ("id", "x", "v", "m")}
+    order = np.argsort(arrays["id"], kind="stable")
+    arrays = {k: a[order] for k, a in arrays.items()}
+    if len(arrays["id"]) != manifest["particles"] or np.any(np.diff(arrays["id"]) <= 0):
+        raise CheckpointError(f"{folder}: {len(arrays['id'])} particles with duplicates or gaps; the run had "
+                              f"{manifest['particles']}")
+    dtype = {"f32": np.float32, "f64": np.float64}[manifest["precision"]]
+    if arrays["x"].dtype != dtype:
+        raise CheckpointError(f"{folder}: arrays are {arrays['x'].dtype}, the manifest says {manifest['precision']}")
+    return Checkpoint(folder, manifest, arrays)
+
+
+def restore(sim, ckpt: Checkpoint):
+    """Put the checkpoint's particles and step state into a freshly built Simulation of its scene."""
+    from sphcore.state import ParticleState
+    a, m = ckpt.arrays, ckpt.manifest
+    if len(a["id"]) != sim.n_particles or not np.array_equal(a["id"], np.sort(sim.state.id)):
+        raise CheckpointError(f"{ckpt.path}: its particles do not match the scene's ({len(a['id'])} vs "
+                              f"{sim.n_particles})")
+    sim.state = ParticleState.create(a["id"], a["x"], a["v"], a["m"], sim.dtype)
+    sim._resize_scratch(sim.state.n)
+    sim.step_index, sim.t, sim.dt, sim.dt_prev = int(m["step"]), float(m["t"]), float(m["dt"]), float(m["dt_prev"])
+    sim.leaks, sim.max_neighbours = int(m["leaks"]), int(m["max_neighbours"])
+    sim.max_compression, sim.last_limit = float(m["max_compression"]), m["last_limit"]
+    sim.limit_counts.update({k: int(v) for k, v in m["limit_counts"].items()})
