@@ -81,6 +81,9 @@ def build_parser() -> argparse.ArgumentParser:
                           "block of the domain ([decomposition] in the scene)")
     run.add_argument("--timeout", type=_positive_float, default=120.0,
                      help="seconds a peer waits for a message before giving up (names the missing peer)")
+    run.add_argument("--vtk", type=_positive_int, default=None, metavar="K",
+                     help="write ParaView files every K steps: OUT/particles.pvd (+ OUT/surface.pvd with "
+                          "--set output.surface=true); same as --set output.vtk_every=K")
     run.add_argument("--checkpoint-every", type=_positive_int, default=None, metavar="K",
                      help="write a checkpoint to OUT/checkpoints every K steps (default: output.checkpoint_every)")
     run.add_argument("--resume", type=Path, default=None, metavar="DIR",
@@ -177,6 +180,17 @@ def build_parser() -> argparse.ArgumentParser:
                          help="rank 0's Zenoh endpoint, e.g. tcp/127.0.0.1:7447")
     control.add_argument("words", nargs="+", metavar="COMMAND", help="e.g. pause, or set forces.external=[2,0,0]")
 
+    render = sub.add_parser(
+        "render", help="PNG frames and an MP4 of a run's fluid surface (or particles), off-screen",
+        description="Draw the VTK series of a finished run (sph run --vtk K --set output.surface=true) into "
+                    "OUT/frames/*.png and OUT/surface.mp4 with PyVista, off-screen (no display needed).")
+    render.add_argument("out", type=Path, help="the run's output folder")
+    render.add_argument("--particles", action="store_true", help="draw the particles (coloured by speed) instead")
+    render.add_argument("--frames", type=Path, default=None, help="folder for the PNG frames (default OUT/frames)")
+    render.add_argument("--no-mp4", action="store_true", help="PNG frames only")
+    render.add_argument("--size", type=_positive_int, nargs=2, default=[960, 640], metavar=("W", "H"))
+    render.add_argument("--fps", type=_positive_int, default=20)
+
     replay = sub.add_parser("replay", help="open a recording (.rrd) in the Rerun viewer",
                             description="Open FILE.rrd in the native Rerun viewer, or serve it to a browser.")
     replay.add_argument("file", type=Path, help="a recording, e.g. runs/dam_break/run.rrd")
@@ -226,6 +240,8 @@ def main(argv: list[str] | None = None) -> int:
             return _cmd_replay(args)
         if args.command == "control":
             return _cmd_control(args)
+        if args.command == "render":
+            return _cmd_render(args)
         if args.command == "scene":
             return _cmd_scene(args)
         if args.command == "bench":
@@ -303,6 +319,10 @@ def _scene_for_run(args):
 
 
 def _cmd_run(args) -> int:
+    if args.vtk is not None:
+        if args.resume is not None:
+            raise UsageError("--vtk with --resume: the checkpoint's scene decides (output.vtk_every)")
+        args.overrides = args.overrides + [f"output.vtk_every={args.vtk}"]  # reaches every peer too
     if args.peers < 1:
         raise UsageError(f"--peers {args.peers}: at least one peer is needed")
     if args.backend != "cpu":
@@ -424,6 +444,23 @@ def _cmd_control(args) -> int:
     finally:
         session.close()
     print(f"sph control: sent {text!r} to run {args.run_id}", file=sys.stderr)
+    return 0
+
+
+def _cmd_render(args) -> int:
+    from launch.render import render_series
+    log = logging.getLogger("sph.render")
+
+    def progress(i, n):
+        if i == n or i % max(1, n // 10) == 0:
+            log.info("frame %d/%d", i, n)
+
+    try:
+        written = render_series(args.out, args.frames or args.out / "frames", args.particles, not args.no_mp4,
+                                args.size[0], args.size[1], args.fps, progress)
+    except (FileNotFoundError, ValueError) as e:
+        raise UsageError(str(e)) from None
+    print(f"sph render: {len(written)} files, last {written[-1]}", file=sys.stderr)
     return 0
 
 

@@ -89,6 +89,10 @@ def run_scene(scene: Scene, out: Path, precision: str | None, steps: int | None,
                 checkpoint.commit(root, sim.step_index, checkpoint.sim_info(sim), resolved_scene(scene, sim), [part],
                                   scene.output.checkpoint_keep)
         hooks.append(save)
+    if scene.output.vtk_every:
+        from sphcore.vtk import VtkWriter
+        vtk = VtkWriter(out, scene)
+        hooks.append(lambda: vtk.write(sim) if vtk.due(sim) else None)
     log.info("%s: %d particles, %s, %d numba threads", scene.scene.name, sim.n_particles, sim.precision,
              numba.get_num_threads())
     on_step, view = None, None

@@ -184,11 +184,23 @@ def run_peer(scene, rank: int, world: int, endpoint, out: Path | None, precision
         checkpoint.commit(checkpoint_root, step, checkpoint.sim_info(sim), resolved_scene(scene, sim), parts,
                           scene.output.checkpoint_keep)
 
+    vtk = None
+    if scene.output.vtk_every:
+        from sphcore.vtk import VtkWriter
+        vtk = VtkWriter(checkpoint_root.parent, scene, rank, world)
+
+    def block_box():
+        lo, hi = halo.dec.cell_box(rank)
+        g = sim.grid
+        return g.origin + lo * g.cell.astype(np.float64), g.origin + hi * g.cell.astype(np.float64)
+
     def on_step(seconds):
         recorder(seconds)
         controls.after_step()
         if every and sim.step_index % every == 0:
             save()
+        if vtk is not None and vtk.due(sim):
+            vtk.write(sim, block_box())
         if maker is not None and maker.due(sim) and endpoint.viewer_listening():
             frame, stats, points = maker.make(sim, sum(endpoint.bytes_sent.values()))
             with sim.timers("publish"):

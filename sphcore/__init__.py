@@ -2,5 +2,55 @@
 
 No networking here. Importing this package compiles nothing; numba compiles each stage on first use
 and caches it on disk.
+
+numba's cache checks only the source file of the function it compiled, not the files of the
+functions inlined into it: a driver in backends/cpu.py would keep calling a stale copy of a
+changed physics/walls.py function. So the cache lives in a folder named after a hash of every
+sphcore source file (``~/.cache/sphfluid/numba/<hash>``, or under ``$SPH_CACHE_DIR``); any change
+to the physics starts a fresh cache. Set NUMBA_CACHE_DIR to choose the folder yourself.
+
+Fused multiply-add is switched off for the code numba generates (the host CPU's features minus
+``fma``). numba emits the code it runs right after compiling through its JIT, and the code it
+caches through a separate object-code path; the two contract a * b + c into FMA in different
+places, so the process that compiled a kernel got different last bits than every later process
+that loaded it from the cache (measured: accelerations differed by 1 ulp). Without FMA both paths
+give the same bits, and a run is bitwise reproducible whichever process compiled its kernels —
+which the distributed runs (peers are separate processes) rely on. Set NUMBA_CPU_FEATURES to
+override.
 """
+import hashlib
+import os
+from pathlib import Path
+
 __version__ = "0.1.0"
+
+
+def _source_hash() -> str:
+    h = hashlib.sha256()
+    root = Path(__file__).resolve().parent
+    for path in sorted(root.rglob("*.py")):
+        h.update(str(path.relative_to(root)).encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _use_versioned_numba_cache():
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return
+    import numba
+    base = Path(os.environ.get("SPH_CACHE_DIR", Path.home() / ".cache" / "sphfluid"))
+    numba.config.CACHE_DIR = str(base / "numba" / _source_hash())
+
+
+def _no_fused_multiply_add():
+    if os.environ.get("NUMBA_CPU_FEATURES"):
+        return
+    import numba
+    from numba.core.codegen import get_host_cpu_features
+    features = [f for f in get_host_cpu_features().split(",") if f]
+    features = [("-" + f[1:]) if f[1:] in ("fma", "fma4") else f for f in features]
+    numba.config.CPU_FEATURES = ",".join(features)
+
+
+_use_versioned_numba_cache()
+_no_fused_multiply_add()

@@ -111,6 +111,13 @@ def build_walls(scene: Scene, kernel: Kernel, H: float, dtype) -> Walls:
         if ob.shape == "sphere":
             kinds.append(WallKind.SPHERE_OUTSIDE)
             rows.append(_row(point=centre, radius=ob.radius))
+        elif ob.shape == "mesh":
+            from sphcore.mesh_sdf import pack, signed_distance_grid
+            from sphcore.scene import mesh_path
+            origin, step, values = signed_distance_grid(mesh_path(scene, ob), centre, ob.scale * s, Rob, 0.5 * dx,
+                                                        2.0 * H + 2.0 * dx)
+            kinds.append(WallKind.MESH_OUTSIDE)
+            rows.append(np.concatenate([_row(point=centre), pack(origin, step, values)]))
         else:
             kinds.append(WallKind.BOX_OUTSIDE)
             rows.append(_row(point=centre, R=Rob, half=0.5 * np.array(ob.size)))
@@ -121,9 +128,18 @@ def build_walls(scene: Scene, kernel: Kernel, H: float, dtype) -> Walls:
     tables = wall_tables(kernel, scene.dim, H, dx)
     return Walls(
         kind=np.array(kinds, dtype=np.int32),
-        data=np.array(rows, dtype=dtype).reshape(len(rows), 16),
+        data=_pad_rows(rows, dtype),
         tables=tables.astype(dtype), lo=lo, hi=hi, container_walls=n_container,
     )
+
+
+def _pad_rows(rows, dtype) -> np.ndarray:
+    """Rows of 16 floats, or longer where a mesh wall carries its distance grid (zero padded)."""
+    width = max([16] + [len(r) for r in rows])
+    out = np.zeros((len(rows), width), dtype=dtype)
+    for q, r in enumerate(rows):
+        out[q, :len(r)] = r
+    return out
 
 
 def wall_tables(kernel: Kernel, dim: int, H: float, dx: float, per_half_spacing: int = 64) -> np.ndarray:

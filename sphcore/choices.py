@@ -43,6 +43,7 @@ class WallKind(IntEnum):
     CYLINDER_INSIDE = 2   # lateral surface of a cylindrical container (local y axis)
     SPHERE_OUTSIDE = 3    # spherical obstacle: fluid outside
     BOX_OUTSIDE = 4       # box obstacle (rotated): fluid outside
+    MESH_OUTSIDE = 5      # triangle-mesh obstacle: a signed distance grid (sphcore.mesh_sdf)
 
 
 KERNELS = {"muller": Kernel.MULLER, "cubic_spline": Kernel.CUBIC_SPLINE, "wendland_c2": Kernel.WENDLAND_C2}

@@ -139,11 +139,13 @@ class Domain:
 
 @dataclass(frozen=True)
 class Obstacle:
-    shape: str = spec("sphere", "obstacle shape", choices=("sphere", "box"))
+    shape: str = spec("sphere", "obstacle shape", choices=("sphere", "box", "mesh"))
     center: tuple = spec((0.0, 0.0, 0.0), "centre (m)", length=VEC)
+    file: str = spec("", "mesh: triangle mesh (STL, OBJ, PLY), relative to the scene file; centred on its bounds")
+    scale: float = spec(1.0, "mesh: uniform scale", range=(0.0, math.inf), min_exclusive=True)
     radius: float = spec(0.1, "sphere: radius (m)", range=(0.0, math.inf), min_exclusive=True)
     size: tuple = spec((0.1, 0.1, 0.1), "box: edge lengths (m)", length=VEC)
-    rotation: tuple = spec((0.0, 0.0, 0.0), "box: rotation about x, y, z (degrees)", length=VEC)
+    rotation: tuple = spec((0.0, 0.0, 0.0), "box and mesh: rotation about x, y, z (degrees)", length=VEC)
     frame: str = spec("world", "coordinates of center: world or the container's local frame",
                       choices=("world", "container"))
 
@@ -476,6 +478,14 @@ def _pad_vectors(scene: Scene) -> Scene:
     return dataclasses.replace(scene, **new)
 
 
+def mesh_path(scene: Scene, obstacle) -> Path:
+    """A mesh obstacle's file: relative to the scene file's folder (or the working folder)."""
+    path = Path(obstacle.file)
+    if not path.is_absolute() and scene.source:
+        path = Path(scene.source).parent / path
+    return path
+
+
 def _check_combinations(s: Scene) -> Scene:
     """Cross-key rules: each error names the keys involved and what would be allowed."""
     dom = s.domain
@@ -509,6 +519,17 @@ def _check_combinations(s: Scene) -> Scene:
     if any(dims) and (not all(dims) or (s.dim == 2 and dims[2] != 1)):
         raise SceneError(f"decomposition.dims = {list(dims)!r}: give all three counts >= 1 (pz = 1 in 2D), "
                          "or [0, 0, 0] to choose them from the peer count")
+    obstacles = []
+    for i, ob in enumerate(s.obstacles):
+        if ob.shape == "mesh":
+            if s.dim != 3:
+                raise SceneError(f"obstacles[{i}].shape = 'mesh': mesh obstacles need a 3D scene")
+            path = mesh_path(s, ob)
+            if not path.is_file():
+                raise SceneError(f"obstacles[{i}].file = {ob.file!r}: no such file ({path})")
+            ob = dataclasses.replace(ob, file=str(path.resolve()))  # resolved: scene.toml works anywhere
+        obstacles.append(ob)
+    s = dataclasses.replace(s, obstacles=tuple(obstacles))
     names = [c.name for c in s.render.cameras]
     if len(set(names)) != len(names) or "default" in names:
         raise SceneError(f"render.cameras: names must be unique and not 'default', got {names!r}")

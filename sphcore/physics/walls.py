@@ -36,7 +36,9 @@ factor. A particle found *behind* a wall (d < 0) after drifting counts as a leak
 
 Primitive data (one row of ``wall_data``, float, 16 entries): [0:3] a point (plane point, centre),
 [3:6] plane normal, [6:15] rotation matrix local->world (row-major, cylinder/box), [15] radius.
-Box obstacles keep half-extents in [3:6] (they have no plane normal).
+Box obstacles keep half-extents in [3:6] (they have no plane normal). A mesh obstacle's row goes on
+with its signed distance grid ([16:] as laid out in ``sphcore.mesh_sdf``), and every row of the
+table is then that long (zero padded).
 """
 import math
 
@@ -46,9 +48,49 @@ from sphcore.physics.kernels import dw_dr, w
 
 
 @njit(cache=True, inline="always")
+def _mesh_distance(wd, x, y, z):
+    """Trilinear signed distance of a mesh obstacle's grid (sphcore.mesh_sdf layout) and the unit
+    gradient of the interpolant as the normal; far outside the grid: no wall."""
+    one = 1.0
+    inv = wd[19]
+    nx, ny, nz = int(wd[20]), int(wd[21]), int(wd[22])
+    fx = (x - wd[16]) * inv
+    fy = (y - wd[17]) * inv
+    fz = (z - wd[18]) * inv
+    if fx < 0.0 or fy < 0.0 or fz < 0.0 or fx > nx - 1 or fy > ny - 1 or fz > nz - 1:
+        return 1.0e6 * one, 0.0 * one, one, 0.0 * one
+    i = min(int(fx), nx - 2)
+    j = min(int(fy), ny - 2)
+    k = min(int(fz), nz - 2)
+    tx, ty, tz = fx - i, fy - j, fz - k
+    b = 24 + (k * ny + j) * nx + i
+    c000, c100 = wd[b], wd[b + 1]
+    c010, c110 = wd[b + nx], wd[b + nx + 1]
+    c001, c101 = wd[b + nx * ny], wd[b + nx * ny + 1]
+    c011, c111 = wd[b + nx * ny + nx], wd[b + nx * ny + nx + 1]
+    d00 = c000 + tx * (c100 - c000)
+    d10 = c010 + tx * (c110 - c010)
+    d01 = c001 + tx * (c101 - c001)
+    d11 = c011 + tx * (c111 - c011)
+    d0 = d00 + ty * (d10 - d00)
+    d1 = d01 + ty * (d11 - d01)
+    d = d0 + tz * (d1 - d0)
+    gx = ((1 - ty) * (1 - tz) * (c100 - c000) + ty * (1 - tz) * (c110 - c010)
+          + (1 - ty) * tz * (c101 - c001) + ty * tz * (c111 - c011))
+    gy = (1 - tz) * (d10 - d00) + tz * (d11 - d01)
+    gz = d1 - d0
+    g = math.sqrt(gx * gx + gy * gy + gz * gz)
+    if g > 0.0:
+        return d, gx / g, gy / g, gz / g
+    return d, 0.0 * one, one, 0.0 * one
+
+
+@njit(cache=True, inline="always")
 def signed_distance(kind, wd, x, y, z):
     """(d, nx, ny, nz) for primitive ``kind`` with data row ``wd`` at point (x, y, z)."""
     one = 1.0
+    if kind == 5:  # MESH_OUTSIDE
+        return _mesh_distance(wd, x, y, z)
     if kind == 0:  # PLANE
         nx, ny, nz = wd[3], wd[4], wd[5]
         d = (x - wd[0]) * nx + (y - wd[1]) * ny + (z - wd[2]) * nz
