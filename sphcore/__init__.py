@@ -15,8 +15,9 @@ caches through a separate object-code path; the two contract a * b + c into FMA 
 places, so the process that compiled a kernel got different last bits than every later process
 that loaded it from the cache (measured: accelerations differed by 1 ulp). Without FMA both paths
 give the same bits, and a run is bitwise reproducible whichever process compiled its kernels —
-which the distributed runs (peers are separate processes) rely on. Set NUMBA_CPU_FEATURES to
-override.
+which the distributed runs (peers are separate processes) rely on. SPH_FMA=1 keeps FMA (faster,
+see docs/BENCHMARKS.md, but runs are then reproducible only among processes that loaded their
+kernels from the same cache); NUMBA_CPU_FEATURES overrides both.
 """
 import hashlib
 import os
@@ -43,7 +44,7 @@ def _use_versioned_numba_cache():
 
 
 def _no_fused_multiply_add():
-    if os.environ.get("NUMBA_CPU_FEATURES"):
+    if os.environ.get("NUMBA_CPU_FEATURES") or os.environ.get("SPH_FMA") == "1":
         return
     import numba
     from numba.core.codegen import get_host_cpu_features
