@@ -191,6 +191,15 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--size", type=_positive_int, nargs=2, default=[960, 640], metavar=("W", "H"))
     render.add_argument("--fps", type=_positive_int, default=20)
 
+    validate = sub.add_parser(
+        "validate", help="compare with reference solutions and experiments; exit 1 if a metric fails",
+        description="Run validation cases (hydrostatic, dam_break vs Martin & Moyce, taylor_green), print one line "
+                    "per metric (name value tolerance PASS|FAIL) and write a plot per case.")
+    validate.add_argument("cases", nargs="*", metavar="CASE", help="hydrostatic, dam_break, taylor_green")
+    validate.add_argument("--all", action="store_true", help="every case")
+    validate.add_argument("--quick", action="store_true", help="coarser resolution: under ~2 minutes per case")
+    validate.add_argument("--out", type=Path, default=Path("runs/validate"), help="folder for the plots")
+
     replay = sub.add_parser("replay", help="open a recording (.rrd) in the Rerun viewer",
                             description="Open FILE.rrd in the native Rerun viewer, or serve it to a browser.")
     replay.add_argument("file", type=Path, help="a recording, e.g. runs/dam_break/run.rrd")
@@ -242,6 +251,14 @@ def main(argv: list[str] | None = None) -> int:
             return _cmd_control(args)
         if args.command == "render":
             return _cmd_render(args)
+        if args.command == "validate":
+            from launch.validate import CASES, run_validate
+            names = list(CASES) if args.all else args.cases
+            unknown = [c for c in names if c not in CASES]
+            if not names or unknown:
+                raise UsageError(f"validate {' '.join(unknown) or '(nothing)'}: choose from {', '.join(CASES)} "
+                                 "or --all")
+            return run_validate(names, args.quick, args.out)
         if args.command == "scene":
             return _cmd_scene(args)
         if args.command == "bench":
