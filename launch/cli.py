@@ -2,7 +2,8 @@
 
     sph run CONFIG.toml [--peers N] [--precision f32|f64] [--steps S | --until T] [--out DIR] [--set section.key=value ...]
     sph peer CONFIG.toml --rank R --world N --listen ENDPOINT [--connect ENDPOINT ...] --run-id ID
-    sph bench [--sizes ...] [--precisions ...] [--threads ...] [--external]
+    sph viewer | control | render | validate | replay   (see sph COMMAND --help)
+    sph bench [--sizes ...] [--precisions ...] [--threads ...] [--external] [--peers 1 2]
     sph scene CONFIG.toml            print the fully resolved scene (after --set overrides)
 
 Exit codes: 0 success, 2 bad input (scene, option or override; nothing is written), 3 the simulation
@@ -55,8 +56,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
     run = sub.add_parser(
-        "run", help="run a scene and write summary.json, final.npz and scene.toml",
-        description="Run a scene. Writes OUT/summary.json (timings, counts, leaks), OUT/final.npz "
+        "run", help="run a scene (one process or N peers) and write summary.json, final.npz, scene.toml, run.rrd",
+        description="Run a scene in one process or as N peer processes (--peers, --hosts). Writes OUT/summary.json (timings, counts, leaks), OUT/final.npz "
                     "(id, x, v, rho sorted by id) and OUT/scene.toml (the resolved scene) when the run ends.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     run.add_argument("config", type=Path, nargs="?", default=None,
