@@ -1,5 +1,5 @@
 # The two commands of the README:
-#   make demo   set up .venv and run the demo scene (3D dam break, ~49k particles, 200 steps, 2 peer processes) into runs/demo
+#   make demo   set up .venv and run the demo scene (3D dam break, ~49k particles, to t = 0.4 s, 2 peer processes + viewer) into runs/demo
 #   make test   set up .venv and run the default test suite
 # Others:
 #   make test-slow     the heavier suites (pytest -m slow)
@@ -14,7 +14,7 @@ setup:
 	bash scripts/setup.sh
 
 demo: setup
-	$(SPH) run configs/dam_break.toml --peers 2 --steps 200 --out runs/demo
+	$(SPH) run configs/dam_break.toml --peers 2 --until 0.4 --set render.every=50 --set decomposition.balance_every=100 --out runs/demo
 
 test: setup
 	$(PY) -m pytest
