@@ -1,0 +1,34 @@
+"""Where does the Taylor-Green vortex lose its speed? max |v| over its exact value at t = 0.1 s for
+the shipped setting and one change at a time (docs/VALIDATION.md quotes the output).
+
+    .venv/bin/python scripts/probe_taylor_green.py        # about 2 minutes on 2 cores
+"""
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+from sphcore.scene import load_scene  # noqa: E402
+from sphcore.solver import Simulation  # noqa: E402
+
+CASES = [("as shipped (dx = 0.02)", []), ("dx = 0.01", ["particles.spacing=0.01"]),
+         ("nu / 10", ["sph.nu=0.001"]), ("c0 = 40 m/s", ["sph.sound_speed=40.0"])]
+
+
+def ratio_at(overrides, t_end=0.1):
+    scene = load_scene(ROOT / "configs" / "taylor_green_2d.toml", ["particles.spacing=0.02"] + overrides)
+    sim = Simulation(scene, "f64")
+    b = -8.0 * math.pi**2 * scene.sph.nu
+    v0 = np.max(np.linalg.norm(sim.state.v, axis=1))
+    while sim.t < t_end:
+        sim.step(dt_cap=t_end - sim.t)
+    v = np.max(np.linalg.norm(sim.synchronised_velocity()[: sim.state.n_owned, :2], axis=1))
+    return v / v0 / math.exp(b * sim.t)
+
+
+if __name__ == "__main__":
+    for name, overrides in CASES:
+        print(f"{name:<24} max|v| / exact at t = 0.1 s: {ratio_at(overrides):.3f}", flush=True)
