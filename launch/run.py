@@ -129,7 +129,7 @@ def run_scene(scene: Scene, out: Path, precision: str | None, steps: int | None,
         summary["viewer"] = {"frames": view.frames, "record": str(viewer["record"]) if viewer["record"] else None,
                              "composite_latency_ms_median": float(np.median(view.latency_ms)) if view.latency_ms
                              else None}
-    write_outputs(out, scene, sim.precision, final, summary)
+    write_outputs(out, resolved_scene(scene, sim), final, summary)
     return summary
 
 
@@ -140,10 +140,9 @@ def resolved_scene(scene: Scene, sim) -> dict:
     return resolved
 
 
-def write_outputs(out: Path, scene: Scene, precision: str, final: dict, summary: dict):
+def write_outputs(out: Path, resolved: dict, final: dict, summary: dict):
+    """summary.json, final.npz and scene.toml (``resolved``: resolved_scene(scene, sim))."""
     out.mkdir(parents=True, exist_ok=True)
-    resolved = scene.to_dict()
-    resolved["run"]["precision"] = precision  # what ran, --precision included
     write_scene(out / "scene.toml", resolved)
     write_final(out / "final.npz", final)
     write_summary(out / "summary.json", summary)

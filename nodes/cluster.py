@@ -13,6 +13,7 @@ import numpy as np
 from nodes.peer import decomposition_for, take_block
 from nodes.transport import InProcessNetwork
 from sphcore.halo import PeerHalo
+from sphcore.state import merge_by_id
 from sphcore.solver import Simulation
 
 
@@ -61,6 +62,4 @@ class InProcessCluster:
     def final_arrays(self) -> dict:
         _drive([sim.refresh_stages(halo) for sim, halo in zip(self.peers, self.halos)])
         parts = [sim.owned_arrays() for sim in self.peers]
-        out = {k: np.concatenate([p[k] for p in parts]) for k in ("id", "x", "v", "rho")}
-        order = np.argsort(out["id"], kind="stable")
-        return {k: v[order] for k, v in out.items()}
+        return merge_by_id(parts, ("id", "x", "v", "rho"))

@@ -20,6 +20,7 @@ import numpy as np
 from sphcore.decomposition import Decomposition, choose_dims
 from sphcore.halo import PeerHalo
 from sphcore.solver import Simulation
+from sphcore.state import merge_by_id
 
 log = logging.getLogger("sph.peer")
 
@@ -232,9 +233,7 @@ def run_peer(scene, rank: int, world: int, endpoint, out: Path | None, precision
         return None
     parts = [final] + [endpoint.wait(q, (step, "final")) for q in range(1, world)]
     peers = [json.loads(bytes(p["stats"]).decode()) for p in parts]
-    arrays = {k: np.concatenate([p[k] for p in parts]) for k in ("id", "x", "v", "rho")}
-    order = np.argsort(arrays["id"], kind="stable")
-    arrays = {k: a[order] for k, a in arrays.items()}
+    arrays = merge_by_id(parts, ("id", "x", "v", "rho"))
     if len(arrays["id"]) != sim.n_particles or np.any(np.diff(arrays["id"]) <= 0):
         raise RuntimeError(f"gathered {len(arrays['id'])} particles with "
                            f"{len(arrays['id']) - len(np.unique(arrays['id']))} duplicates; the scene has "
@@ -242,7 +241,7 @@ def run_peer(scene, rank: int, world: int, endpoint, out: Path | None, precision
     summary = make_summary(sim, scene, loop, t_setup, time.perf_counter() - t_start)
     summary.update(peer_summary(peers, summary, world, sim.dtype.itemsize))
     if out is not None:
-        write_outputs(out, scene, sim.precision, arrays, summary)
+        write_outputs(out, resolved_scene(scene, sim), arrays, summary)
     for q in range(1, world):
         endpoint.send(q, (step, "bye"), {})
     endpoint.wait_until_alone()

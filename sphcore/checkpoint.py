@@ -143,9 +143,8 @@ def load(path: Path) -> Checkpoint:
             raise CheckpointError(f"{folder}: part {entry['file']} holds {len(part['id'])} particles, the "
                                   f"manifest says {entry['particles']}")
         parts.append(part)
-    arrays = {k: np.concatenate([p[k] for p in parts]) for k in ("id", "x", "v", "m")}
-    order = np.argsort(arrays["id"], kind="stable")
-    arrays = {k: a[order] for k, a in arrays.items()}
+    from sphcore.state import merge_by_id
+    arrays = merge_by_id(parts, ("id", "x", "v", "m"))
     if len(arrays["id"]) != manifest["particles"] or np.any(np.diff(arrays["id"]) <= 0):
         raise CheckpointError(f"{folder}: {len(arrays['id'])} particles with duplicates or gaps; the run had "
                               f"{manifest['particles']}")

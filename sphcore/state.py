@@ -60,3 +60,10 @@ class ParticleState:
     @property
     def dtype(self):
         return self.x.dtype
+
+
+def merge_by_id(parts: list[dict], keys) -> dict:
+    """Per-particle arrays of several parts (peers, checkpoint files) joined and sorted by id."""
+    arrays = {k: np.concatenate([p[k] for p in parts]) for k in keys}
+    order = np.argsort(arrays["id"], kind="stable")
+    return {k: a[order] for k, a in arrays.items()}
