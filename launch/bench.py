@@ -43,10 +43,10 @@ def spacing_for(scene_path: Path, target: int) -> float:
     return float((volume / target) ** (1.0 / dim))
 
 
-def bench_case(scene_path: Path, dx: float, precision: str, threads: int, steps: int) -> dict:
+def bench_case(scene_path: Path, dx: float, precision: str, threads: int, steps: int, backend: str = "cpu") -> dict:
     numba.set_num_threads(threads)
     scene = load_scene(scene_path, [f"particles.spacing={dx!r}", "time.mode='fixed'", "time.dt=1e-4"])
-    sim = Simulation(scene, precision)
+    sim = Simulation(scene, precision, backend)
     t0 = time.perf_counter()
     sim.step()  # compile or load the cache
     first = time.perf_counter() - t0
@@ -57,9 +57,10 @@ def bench_case(scene_path: Path, dx: float, precision: str, threads: int, steps:
     wall = time.perf_counter() - t0
     stages = {k: v["median_s"] for k, v in sim.timers.summary().items()}
     return {
-        "code": "sphfluid", "method": "wcsph", "precision": precision, "threads": threads,
+        "code": "sphfluid", "method": "wcsph", "backend": backend, "device": sim.device_name,
+        "precision": precision, "threads": threads if backend == "cpu" else 0,
         "particles": sim.n_particles, "dx": dx, "steps": steps, "dt": sim.dt, "wall_s": wall,
-        "particle_steps_per_s": sim.n_particles * steps / wall, "first_step_s": first,
+        "particle_steps_per_s": sim.n_particles * steps / wall, "steps_per_s": steps / wall, "first_step_s": first,
         "neighbours": float(sim.grid.counts[: sim.state.n_owned].mean()), "stage_median_s": stages,
         "leaks": sim.leaks,
     }
@@ -72,13 +73,20 @@ def run_bench(args) -> int:
         if t < 1 or t > threads_available:
             from launch.cli import UsageError
             raise UsageError(f"--threads {t}: this machine allows 1..{threads_available}")
+    device = "cpu"
+    if args.backend == "cuda":
+        from sphcore.backends import cuda
+        device = cuda.require()
+        if args.external or args.peers != [1]:
+            from launch.cli import UsageError
+            raise UsageError("--backend cuda: --external and --peers compare CPU runs; run them without it")
     results = []
     started = datetime.now(timezone.utc)
     for target in args.sizes:
         dx = spacing_for(scene_path, target)
         for precision in args.precisions:
-            for threads in args.threads:
-                r = bench_case(scene_path, dx, precision, threads, args.steps)
+            for threads in (args.threads if args.backend == "cpu" else args.threads[:1]):
+                r = bench_case(scene_path, dx, precision, threads, args.steps, args.backend)
                 results.append(r)
                 print(_row(r), flush=True)
         if args.external:
@@ -90,7 +98,7 @@ def run_bench(args) -> int:
     report = {
         "date": started.isoformat(timespec="seconds"), "command": "sph " + " ".join(sys.argv[1:]),
         "machine": {"platform": platform.platform(), "cpu": _cpu_name(), "cores": numba.config.NUMBA_NUM_THREADS,
-                    "python": platform.python_version(), "numba": numba.__version__},
+                    "python": platform.python_version(), "numba": numba.__version__, "device": device},
         "scene": str(scene_path), "results": results,
     }
     if args.json:
@@ -179,8 +187,10 @@ def _row(r: dict) -> str:
         split = "  " + " ".join(f"{k}={v * 1e3:.1f}ms" for k, v in stages.items())
     nb = r.get("neighbours")
     nb_text = f"{nb:5.1f}" if isinstance(nb, (int, float)) else "    -"
-    return (f"{r['code']:>13} {r['method']:>6} {r.get('precision', 'f64'):>4} threads={r['threads']} "
-            f"N={r['particles']:>8} nbrs={nb_text} {r['particle_steps_per_s']:10.3e} particle-steps/s{split}")
+    where = "cuda     " if r.get("backend") == "cuda" else f"threads={r['threads']}"
+    rate = f" {r['steps_per_s']:7.1f} steps/s" if r.get("backend") == "cuda" else ""
+    return (f"{r['code']:>13} {r['method']:>6} {r.get('precision', 'f64'):>4} {where} "
+            f"N={r['particles']:>8} nbrs={nb_text} {r['particle_steps_per_s']:10.3e} particle-steps/s{rate}{split}")
 
 
 def _print_ratios(results: list[dict]):

@@ -76,7 +76,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--threads", type=_positive_int, default=None,
                      help="numba threads per process (default: all cores, divided among the peers)")
     run.add_argument("--backend", choices=("cpu", "cuda"), default="cpu",
-                     help="compute backend (cuda: not available yet)")
+                     help="cpu: numba threads; cuda: the particles live on an NVIDIA GPU for the whole run "
+                          "(one GPU per peer: peer r uses GPU r modulo the GPUs visible; see --device)")
+    run.add_argument("--device", type=_positive_int, default=None, metavar="GPU",
+                     help="--backend cuda with one peer: the GPU index to use (default 0)")
     run.add_argument("--peers", type=_positive_int, default=1,
                      help="number of peer processes on this machine, talking Zenoh over loopback; each owns one "
                           "block of the domain ([decomposition] in the scene)")
@@ -138,6 +141,10 @@ def build_parser() -> argparse.ArgumentParser:
     peer.add_argument("--timeout", type=_positive_float, default=120.0,
                       help="seconds to wait for the other peers to join, and for each message (default: 120)")
     peer.add_argument("--quiet", action="store_true", help="no progress output")
+    peer.add_argument("--backend", choices=("cpu", "cuda"), default="cpu",
+                      help="cpu: numba threads; cuda: this peer's particles live on a GPU for the whole run")
+    peer.add_argument("--device", type=_positive_int, default=None, metavar="GPU",
+                      help="--backend cuda: the GPU index (default: RANK modulo the GPUs visible)")
     peer.add_argument("--checkpoint-every", type=_positive_int, default=None, metavar="K",
                       help="write a checkpoint part every K steps into OUT/checkpoints (the same folder for "
                            "every peer: a shared file system across machines)")
@@ -200,6 +207,8 @@ def build_parser() -> argparse.ArgumentParser:
     validate.add_argument("--all", action="store_true", help="every case")
     validate.add_argument("--quick", action="store_true", help="coarser resolution: under ~2 minutes per case")
     validate.add_argument("--out", type=Path, default=Path("runs/validate"), help="folder for the plots")
+    validate.add_argument("--backend", choices=("cpu", "cuda"), default="cpu",
+                          help="run the cases on the CPU or on a GPU (float64 either way)")
 
     replay = sub.add_parser("replay", help="open a recording (.rrd) in the Rerun viewer",
                             description="Open FILE.rrd in the native Rerun viewer, or serve it to a browser.")
@@ -226,6 +235,9 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--peers", type=_positive_int, nargs="+", default=[1],
                        help="also run each case as P peer processes over Zenoh (e.g. --peers 1 2) and print "
                             "the speed-up over one peer; P x threads must fit the cores")
+    bench.add_argument("--backend", choices=("cpu", "cuda"), default="cpu",
+                       help="cuda: time the GPU backend (one GPU; --threads ignored), e.g. "
+                            "--backend cuda --sizes 100000 1000000 4000000 --precisions f32 f64")
     bench.add_argument("--config", type=Path, default=None, help="scene to benchmark (default: dam_break)")
     bench.add_argument("--json", type=Path, default=None, help="write results as JSON here")
     return parser
@@ -237,6 +249,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s", datefmt="%H:%M:%S")
     from nodes.zenoh_transport import TransportError
+    from sphcore.backends import BackendUnavailable
     from sphcore.scene import SceneError
     from sphcore.solver import SimulationError
     try:
@@ -259,13 +272,16 @@ def main(argv: list[str] | None = None) -> int:
             if not names or unknown:
                 raise UsageError(f"validate {' '.join(unknown) or '(nothing)'}: choose from {', '.join(CASES)} "
                                  "or --all")
-            return run_validate(names, args.quick, args.out)
+            if args.backend == "cuda":
+                from sphcore.backends import cuda
+                cuda.require()
+            return run_validate(names, args.quick, args.out, args.backend)
         if args.command == "scene":
             return _cmd_scene(args)
         if args.command == "bench":
             from launch.bench import run_bench
             return run_bench(args)
-    except (SceneError, UsageError) as e:
+    except (SceneError, UsageError, BackendUnavailable) as e:
         print(f"sph {args.command}: error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except SimulationError as e:
@@ -294,6 +310,17 @@ def _check_threads(threads):
         import numba
         if not 1 <= threads <= numba.config.NUMBA_NUM_THREADS:
             raise UsageError(f"--threads {threads}: allowed 1..{numba.config.NUMBA_NUM_THREADS} on this machine")
+
+
+def _check_backend(args):
+    """--backend cuda needs a GPU (or the simulator): say so before any process starts."""
+    if getattr(args, "device", None) is not None and args.backend != "cuda":
+        raise UsageError(f"--device {args.device}: only with --backend cuda")
+    if args.backend == "cuda":
+        from sphcore.backends import cuda
+        cuda.require()
+        if args.threads:
+            raise UsageError("--threads: the CUDA backend runs on the GPU; give no --threads")
 
 
 def _output_folder(args, scene) -> Path:
@@ -343,8 +370,9 @@ def _cmd_run(args) -> int:
         args.overrides = args.overrides + [f"output.vtk_every={args.vtk}"]  # reaches every peer too
     if args.peers < 1:
         raise UsageError(f"--peers {args.peers}: at least one peer is needed")
-    if args.backend != "cpu":
-        raise UsageError(f"--backend {args.backend}: not available yet; use --backend cpu")
+    if args.device is not None and (args.peers > 1 or args.hosts is not None):
+        raise UsageError("--device picks the GPU of a one-process run; peers take GPU rank modulo the GPUs visible")
+    _check_backend(args)
     if args.no_viewer and (args.record or args.spawn or args.serve_web or args.rerun_url):
         raise UsageError("--no-viewer cannot be combined with --record, --spawn, --serve-web or --connect")
     if args.record is not None and args.record.suffix != ".rrd":
@@ -388,7 +416,8 @@ def _cmd_run(args) -> int:
     from launch.run import run_scene
     summary = run_scene(scene, out, args.precision or (ckpt.manifest["precision"] if ckpt else None), args.steps,
                         args.until, args.threads, progress=not args.quiet, viewer=viewer_options(args, scene, out),
-                        resume=ckpt, checkpoint_every=args.checkpoint_every)
+                        resume=ckpt, checkpoint_every=args.checkpoint_every, backend=args.backend,
+                        device=args.device)
     if not args.quiet:
         _print_done(out, summary)
     return 0
@@ -520,6 +549,7 @@ def _cmd_peer(args) -> int:
         if "/" not in ep:
             raise UsageError(f"endpoint {ep!r}: expected PROTOCOL/ADDRESS:PORT, e.g. tcp/127.0.0.1:7447")
     _check_threads(args.threads)
+    _check_backend(args)
     scene, ckpt = _scene_for_run(args)
     out = _output_folder(args, scene)
     _check_peers(scene, args.world)
@@ -538,7 +568,8 @@ def _cmd_peer(args) -> int:
         run_peer(scene, args.rank, args.world, endpoint, out if args.rank == 0 else None,
                  args.precision or (ckpt.manifest["precision"] if ckpt else None), args.steps, args.until,
                  progress=not args.quiet, startup_timeout=args.timeout, frames=not args.no_frames, resume=ckpt,
-                 checkpoint_every=args.checkpoint_every, checkpoint_root=out / "checkpoints")
+                 checkpoint_every=args.checkpoint_every, checkpoint_root=out / "checkpoints",
+                 backend=args.backend, device=args.device)
     finally:
         endpoint.close()
     return 0

@@ -61,6 +61,8 @@ def peer_command(config: Path, rank: int, world: int, run_id: str, listen: str, 
 def run_options(args) -> list[str]:
     """The `sph run` options every peer of the run must get identically."""
     cmd = []
+    if getattr(args, "backend", "cpu") != "cpu":
+        cmd += ["--backend", args.backend]
     if args.precision:
         cmd += ["--precision", args.precision]
     if args.steps is not None:

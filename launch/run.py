@@ -63,7 +63,7 @@ class Progress:
 
 def run_scene(scene: Scene, out: Path, precision: str | None, steps: int | None, until: float | None,
               threads: int | None, progress: bool = True, viewer: dict | None = None, resume=None,
-              checkpoint_every: int | None = None) -> dict:
+              checkpoint_every: int | None = None, backend: str = "cpu", device: int | None = None) -> dict:
     """Run ``scene`` and write summary.json, final.npz and scene.toml into ``out``; return the summary.
     ``viewer`` (record / spawn / serve_web / connect) renders a frame every render.every steps and
     logs it to Rerun from this process (a single peer needs no compositing over the network).
@@ -73,7 +73,7 @@ def run_scene(scene: Scene, out: Path, precision: str | None, steps: int | None,
     if threads:
         numba.set_num_threads(threads)
     t_start = time.perf_counter()
-    sim = Simulation(scene, precision)
+    sim = Simulation(scene, precision, backend, device)
     if resume is not None:
         checkpoint.restore(sim, resume)
         log.info("resumed from %s at step %d, t = %.6g s", resume.path, sim.step_index, sim.t)
@@ -93,8 +93,8 @@ def run_scene(scene: Scene, out: Path, precision: str | None, steps: int | None,
         from sphcore.vtk import VtkWriter
         vtk = VtkWriter(out, scene)
         hooks.append(lambda: vtk.write(sim) if vtk.due(sim) else None)
-    log.info("%s: %d particles, %s, %d numba threads", scene.scene.name, sim.n_particles, sim.precision,
-             numba.get_num_threads())
+    log.info("%s: %d particles, %s, %s", scene.scene.name, sim.n_particles, sim.precision,
+             sim.device_name if backend == "cuda" else f"{numba.get_num_threads()} numba threads")
     on_step, view = None, None
     if viewer is not None:
         import os
@@ -204,9 +204,10 @@ def make_summary(sim: Simulation, scene: Scene, loop: dict, t_setup: float, wall
         "sim_time": sim.t,
         "wall_s": wall_total,
         "peers": 1,
-        "backend": "cpu",
+        "backend": sim.backend,
+        "device": sim.device_name,
         "precision": sim.precision,
-        "threads": numba.get_num_threads(),
+        "threads": numba.get_num_threads() if sim.backend == "cpu" else None,
         "dim": scene.dim,
         "particle_steps_per_s": (sim.n_particles * loop["steps"] / loop["wall_s"]) if loop["wall_s"] > 0 else None,
         "loop": {"steps": loop["steps"], "wall_s": loop["wall_s"],

@@ -53,7 +53,7 @@ def _plot():
     return plt
 
 
-def dam_break(quick: bool, out: Path) -> list[Metric]:
+def dam_break(quick: bool, out: Path, backend: str = "cpu") -> list[Metric]:
     """2D column a wide and 2a high collapsing in a tank; surge front against Martin & Moyce."""
     dx = 0.01 if quick else 0.005
     scene = load_scene(CONFIGS / "dam_break_2d.toml", [f"particles.spacing={dx}"])
@@ -63,7 +63,7 @@ def dam_break(quick: bool, out: Path) -> list[Metric]:
     scale = math.sqrt(2.0 * g / a)
     usable = MARTIN_MOYCE_Z < (x_wall - 2 * dx) / a  # points before the front reaches the far wall
     t_exp, z_exp = MARTIN_MOYCE_T[usable], MARTIN_MOYCE_Z[usable]
-    sim = Simulation(scene, "f64")
+    sim = Simulation(scene, "f64", backend)
     times, fronts = [0.0], [1.0]
     t_end = t_exp[-1] / scale
     while sim.t < t_end:
@@ -92,14 +92,14 @@ def dam_break(quick: bool, out: Path) -> list[Metric]:
                    f"{len(t_exp)} points, T <= {t_exp[-1]:.2f}, {sim.n_particles} particles")]
 
 
-def taylor_green(quick: bool, out: Path) -> list[Metric]:
+def taylor_green(quick: bool, out: Path, backend: str = "cpu") -> list[Metric]:
     """Periodic decaying vortex at Re = 100 against u = -e^{bt} cos 2pi x sin 2pi y, b = -8 pi^2 / Re."""
     dx = 0.02 if quick else 0.01
     scene = load_scene(CONFIGS / "taylor_green_2d.toml", [f"particles.spacing={dx}"])
     U, nu = scene.fluid.flow_speed, scene.sph.nu
     b = -8.0 * math.pi**2 * nu  # L = 1: Re = U L / nu
     t_end = 1.0
-    sim = Simulation(scene, "f64")
+    sim = Simulation(scene, "f64", backend)
     times, vmax = [0.0], [float(np.max(np.linalg.norm(sim.state.v[:, :2], axis=1)))]
     while sim.t < t_end:
         sim.step(dt_cap=t_end - sim.t)
@@ -131,12 +131,12 @@ def taylor_green(quick: bool, out: Path) -> list[Metric]:
             Metric("taylor_green.decay_relative", decay_err, 0.05, "max |v| / max |v|(0) against e^{bt}")]
 
 
-def hydrostatic(quick: bool, out: Path) -> list[Metric]:
+def hydrostatic(quick: bool, out: Path, backend: str = "cpu") -> list[Metric]:
     """Still water settling in a 2D tank: pressure against rho0 g (H - y) once at rest."""
     dx = 0.02 if quick else 0.01
     scene = load_scene(CONFIGS / "hydrostatic_2d.toml", [f"particles.spacing={dx}"])
     rho0, g = scene.fluid.rest_density, abs(scene.forces.gravity[1])
-    sim = Simulation(scene, "f64")
+    sim = Simulation(scene, "f64", backend)
     t_end = 1.5
     times, ke = [], []
     while sim.t < t_end:
@@ -178,13 +178,13 @@ def hydrostatic(quick: bool, out: Path) -> list[Metric]:
 CASES = {"hydrostatic": hydrostatic, "dam_break": dam_break, "taylor_green": taylor_green}
 
 
-def run_validate(names: list[str], quick: bool, out: Path) -> int:
+def run_validate(names: list[str], quick: bool, out: Path, backend: str = "cpu") -> int:
     out.mkdir(parents=True, exist_ok=True)
     failed = 0
     print(f"{'metric':<34} {'value':>10} {'tolerance':>10} result")
     for name in names:
         log.info("%s (%s)", name, "quick" if quick else "full")
-        for m in CASES[name](quick, out):
+        for m in CASES[name](quick, out, backend):
             print(m.line(), flush=True)
             failed += not m.passed
     print(f"plots in {out}/")

@@ -40,17 +40,17 @@ class InProcessCluster:
     """``n_peers`` peers of ``scene``, each owning a block of the global grid (``dims`` overrides the
     scene's decomposition.dims)."""
 
-    def __init__(self, scene, n_peers: int, precision: str = "f64", dims=None):
+    def __init__(self, scene, n_peers: int, precision: str = "f64", dims=None, backend: str = "cpu"):
         if dims is not None:
             scene = dataclasses.replace(scene, decomposition=dataclasses.replace(scene.decomposition,
                                                                                  dims=tuple(dims)))
         self.network = InProcessNetwork()
         self.peers = []
         self.halos = []
-        probe = Simulation(scene, precision)
+        probe = Simulation(scene, precision, backend)
         self.dec = decomposition_for(scene, probe.grid, n_peers, probe.state.x)
         for rank in range(self.dec.n_peers):
-            sim = probe if rank == 0 else Simulation(scene, precision)
+            sim = probe if rank == 0 else Simulation(scene, precision, backend)
             take_block(sim, self.dec, rank)
             self.peers.append(sim)
             self.halos.append(PeerHalo(self.dec, rank, self.network.endpoint(rank),

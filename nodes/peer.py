@@ -145,7 +145,7 @@ class Controls:
 def run_peer(scene, rank: int, world: int, endpoint, out: Path | None, precision: str | None,
              steps: int | None, until: float | None, progress: bool, startup_timeout: float = 120.0,
              frames: bool = True, resume=None, checkpoint_every: int | None = None,
-             checkpoint_root: Path | None = None) -> dict | None:
+             checkpoint_root: Path | None = None, backend: str = "cpu", device: int | None = None) -> dict | None:
     """Run peer ``rank`` of ``world`` to the end; rank 0 writes ``out`` and returns the summary.
     With ``frames`` (and render.every > 0) the peer renders and publishes a framelet every
     render.every steps while a viewer is subscribed. ``resume``: a loaded checkpoint (any number of
@@ -158,7 +158,8 @@ def run_peer(scene, rank: int, world: int, endpoint, out: Path | None, precision
     from nodes.viewer import frame_arrays
     t_start = time.perf_counter()
     from sphcore import checkpoint
-    sim = Simulation(scene, precision)
+    # one GPU per peer: rank r takes GPU r modulo the GPUs visible, unless told otherwise
+    sim = Simulation(scene, precision, backend, rank if device is None else device)
     if resume is not None:
         checkpoint.restore(sim, resume)
     dec = decomposition_for(scene, sim.grid, world, sim.state.x)

@@ -75,20 +75,25 @@ def _scatter_by_key(keys, cell_start, perm):
         fill[k] += 1
 
 
+@njit(cache=True, inline="always")
+def sort_bin_row(c, bin_start, perm, ids):
+    """Insertion sort of bin c's slice of ``perm`` by id; cheap because slices are short and nearly
+    sorted from the previous step (shared by the CPU driver below and the CUDA kernel)."""
+    lo, hi = bin_start[c], bin_start[c + 1]
+    for k in range(lo + 1, hi):
+        pk = perm[k]
+        idk = ids[pk]
+        j = k - 1
+        while j >= lo and ids[perm[j]] > idk:
+            perm[j + 1] = perm[j]
+            j -= 1
+        perm[j + 1] = pk
+
+
 @njit(cache=True, parallel=True)
-def _sort_cells_by_id(cell_start, perm, ids):
-    """Insertion sort of each cell's slice of ``perm`` by id; cheap because slices are short and
-    nearly sorted from the previous step."""
-    for c in prange(cell_start.shape[0] - 1):
-        lo, hi = cell_start[c], cell_start[c + 1]
-        for k in range(lo + 1, hi):
-            pk = perm[k]
-            idk = ids[pk]
-            j = k - 1
-            while j >= lo and ids[perm[j]] > idk:
-                perm[j + 1] = perm[j]
-                j -= 1
-            perm[j + 1] = pk
+def _sort_cells_by_id(bin_start, perm, ids):
+    for c in prange(bin_start.shape[0] - 1):
+        sort_bin_row(c, bin_start, perm, ids)
 
 
 def counting_sort(keys, ids, bin_start, perm):
@@ -97,23 +102,30 @@ def counting_sort(keys, ids, bin_start, perm):
     _sort_cells_by_id(bin_start, perm, ids)
 
 
+@njit(cache=True, inline="always")
+def cell_range_row(c, bin_start, ncells, cell_begin, cell_end):
+    """Row range of cell c from the owned bins [0, ncells) or the ghost bins [ncells, 2 ncells).
+    A cell holds owned or ghost rows, never both (cuts lie on cell faces); returns 1 if cell c
+    breaks that rule (a missed migration), else 0."""
+    own_lo, own_hi = bin_start[c], bin_start[c + 1]
+    gh_lo, gh_hi = bin_start[ncells + c], bin_start[ncells + c + 1]
+    if gh_hi > gh_lo:
+        cell_begin[c] = gh_lo
+        cell_end[c] = gh_hi
+        return 1 if own_hi > own_lo else 0
+    # owned or empty: empty cells keep their place in the owned sequence (contiguous rows)
+    cell_begin[c] = own_lo
+    cell_end[c] = own_hi
+    return 0
+
+
 @njit(cache=True)
 def _cell_ranges(bin_start, ncells, cell_begin, cell_end):
-    """Row range of every cell from the owned bins [0, ncells) or the ghost bins [ncells, 2 ncells).
-    A cell holds owned or ghost rows, never both (cuts lie on cell faces); returns the number of
-    cells that break that rule (0 unless a migration was missed)."""
+    """cell_begin/cell_end of every cell; returns the number of cells holding both owned and ghost
+    rows (0 unless a migration was missed)."""
     mixed = 0
     for c in range(ncells):
-        own_lo, own_hi = bin_start[c], bin_start[c + 1]
-        gh_lo, gh_hi = bin_start[ncells + c], bin_start[ncells + c + 1]
-        if gh_hi > gh_lo:
-            cell_begin[c] = gh_lo
-            cell_end[c] = gh_hi
-            if own_hi > own_lo:
-                mixed += 1
-        else:  # owned or empty: empty cells keep their place in the owned sequence (contiguous rows)
-            cell_begin[c] = own_lo
-            cell_end[c] = own_hi
+        mixed += cell_range_row(c, bin_start, ncells, cell_begin, cell_end)
     return mixed
 
 
@@ -166,66 +178,74 @@ def _face_gap2(offset, xi, lo_face, hi_face):
     return g * g
 
 
+@njit(cache=True, inline="always")
+def neighbour_row(periodic, i, x, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell, period, H2, nbr,
+                  counts):
+    """Neighbour list of row i (shared by the CPU driver below and the CUDA kernel). Neighbour cells
+    are visited in a fixed order (z, y, x); a cell (or a whole row of cells) farther than H from the
+    particle is skipped, which removes about a quarter of the candidates."""
+    nx, ny, nz = ncell[0], ncell[1], ncell[2]
+    px, py, pz = period[0] > 0.0, period[1] > 0.0, period[2] > 0.0
+    cap = nbr.shape[1]
+    xi, yi, zi = x[i, 0], x[i, 1], x[i, 2]
+    ix = min(max(int(math.floor((xi - origin[0]) * inv_cell[0])), 0), nx - 1)
+    iy = min(max(int(math.floor((yi - origin[1]) * inv_cell[1])), 0), ny - 1)
+    iz = min(max(int(math.floor((zi - origin[2]) * inv_cell[2])), 0), nz - 1)
+    x_lo = origin[0] + ix * cell[0]
+    y_lo = origin[1] + iy * cell[1]
+    z_lo = origin[2] + iz * cell[2]
+    gx_left = _face_gap2(-1, xi, x_lo, x_lo + cell[0])
+    gx_right = _face_gap2(1, xi, x_lo, x_lo + cell[0])
+    count = 0
+    for dz in range(-1, 2):
+        cz = iz + dz
+        if cz < 0 or cz >= nz:
+            if not pz:
+                continue
+            cz = (cz + nz) % nz
+        gz = _face_gap2(dz, zi, z_lo, z_lo + cell[2])
+        if gz >= H2:
+            continue
+        for dy in range(-1, 2):
+            cy = iy + dy
+            if cy < 0 or cy >= ny:
+                if not py:
+                    continue
+                cy = (cy + ny) % ny
+            gyz = gz + _face_gap2(dy, yi, y_lo, y_lo + cell[1])
+            if gyz >= H2:
+                continue
+            row = (cz * ny + cy) * nx
+            use_left = gyz + gx_left < H2
+            use_right = gyz + gx_right < H2
+            if contiguous and (not px or (ix >= 1 and ix + 1 < nx)):
+                lo = max(ix - 1, 0) if use_left else ix
+                hi = min(ix + 1, nx - 1) if use_right else ix
+                count = _scan_range(i, cell_begin[row + lo], cell_end[row + hi], x, xi, yi, zi,
+                                    H2, period, periodic, nbr, count, cap)
+            else:
+                for dx in range(-1, 2):
+                    if (dx < 0 and not use_left) or (dx > 0 and not use_right):
+                        continue
+                    cx = ix + dx
+                    if cx < 0 or cx >= nx:
+                        if not px:
+                            continue
+                        cx = (cx + nx) % nx
+                    count = _scan_range(i, cell_begin[row + cx], cell_end[row + cx], x, xi, yi,
+                                        zi, H2, period, periodic, nbr, count, cap)
+    counts[i] = count
+
+
 @literal_dispatch(1)
 @njit(cache=True, parallel=True)
 def _build_neighbours(periodic, x, n_query, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell, period,
                       H2, nbr, counts):
-    """Neighbour lists of rows 0..n_query-1. Neighbour cells are visited in a fixed order (z, y, x);
-    a cell (or a whole row of cells) farther than H from the particle is skipped, which removes
-    about a quarter of the candidates."""
+    """Neighbour lists of rows 0..n_query-1 (neighbour_row)."""
     literally(periodic)
-    nx, ny, nz = ncell[0], ncell[1], ncell[2]
-    px, py, pz = period[0] > 0.0, period[1] > 0.0, period[2] > 0.0
-    cap = nbr.shape[1]
     for i in prange(n_query):
-        xi, yi, zi = x[i, 0], x[i, 1], x[i, 2]
-        ix = min(max(int(math.floor((xi - origin[0]) * inv_cell[0])), 0), nx - 1)
-        iy = min(max(int(math.floor((yi - origin[1]) * inv_cell[1])), 0), ny - 1)
-        iz = min(max(int(math.floor((zi - origin[2]) * inv_cell[2])), 0), nz - 1)
-        x_lo = origin[0] + ix * cell[0]
-        y_lo = origin[1] + iy * cell[1]
-        z_lo = origin[2] + iz * cell[2]
-        gx_left = _face_gap2(-1, xi, x_lo, x_lo + cell[0])
-        gx_right = _face_gap2(1, xi, x_lo, x_lo + cell[0])
-        count = 0
-        for dz in range(-1, 2):
-            cz = iz + dz
-            if cz < 0 or cz >= nz:
-                if not pz:
-                    continue
-                cz = (cz + nz) % nz
-            gz = _face_gap2(dz, zi, z_lo, z_lo + cell[2])
-            if gz >= H2:
-                continue
-            for dy in range(-1, 2):
-                cy = iy + dy
-                if cy < 0 or cy >= ny:
-                    if not py:
-                        continue
-                    cy = (cy + ny) % ny
-                gyz = gz + _face_gap2(dy, yi, y_lo, y_lo + cell[1])
-                if gyz >= H2:
-                    continue
-                row = (cz * ny + cy) * nx
-                use_left = gyz + gx_left < H2
-                use_right = gyz + gx_right < H2
-                if contiguous and (not px or (ix >= 1 and ix + 1 < nx)):
-                    lo = max(ix - 1, 0) if use_left else ix
-                    hi = min(ix + 1, nx - 1) if use_right else ix
-                    count = _scan_range(i, cell_begin[row + lo], cell_end[row + hi], x, xi, yi, zi,
-                                        H2, period, periodic, nbr, count, cap)
-                else:
-                    for dx in range(-1, 2):
-                        if (dx < 0 and not use_left) or (dx > 0 and not use_right):
-                            continue
-                        cx = ix + dx
-                        if cx < 0 or cx >= nx:
-                            if not px:
-                                continue
-                            cx = (cx + nx) % nx
-                        count = _scan_range(i, cell_begin[row + cx], cell_end[row + cx], x, xi, yi,
-                                            zi, H2, period, periodic, nbr, count, cap)
-        counts[i] = count
+        neighbour_row(periodic, i, x, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell, period, H2,
+                      nbr, counts)
 
 
 class Grid:

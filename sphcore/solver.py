@@ -1,8 +1,9 @@
 """The simulation: set-up from a scene, and the one place that orders a step.
 
-``Simulation(scene, precision)`` builds the particles, walls, grid and parameters; ``step()`` runs
-one time step as a flat list of timed stages (what each reads and writes is noted beside it);
-optional terms appear in the list only when the scene enables them.
+``Simulation(scene, precision, backend)`` builds the particles, walls, grid and parameters;
+``step()`` runs one time step as a flat list of timed stages (what each reads and writes is noted
+beside it); optional terms appear in the list only when the scene enables them. The backend
+(``backends/cpu.py`` CpuStages or ``backends/cuda.py`` CudaStages) does the work of each stage.
 """
 from __future__ import annotations
 
@@ -43,8 +44,19 @@ class SimulationError(RuntimeError):
     """The run became unphysical; the message names the step, the cause and the particles."""
 
 
+BACKENDS = ("cpu", "cuda")
+
+
 class Simulation:
-    def __init__(self, scene: Scene, precision: str | None = None):
+    def __init__(self, scene: Scene, precision: str | None = None, backend: str = "cpu", device: int | None = None):
+        """``backend`` "cpu" or "cuda"; ``device``: the GPU index for cuda (modulo the GPUs visible)."""
+        if backend not in BACKENDS:
+            raise ValueError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
+        self.backend = backend
+        self.device_name = "cpu"
+        if backend == "cuda":  # fail before any set-up work when there is no GPU
+            from sphcore.backends import cuda as cuda_backend
+            self.device_name = cuda_backend.require(device)
         self.scene = scene
         self.precision = precision or scene.run.precision
         if self.precision not in DTYPES:
@@ -69,10 +81,11 @@ class Simulation:
         rho0 = scene.fluid.rest_density
         S = lattice_sum(self.kernel, scene.dim, self.H, dx)
         mass = rho0 / S
-        self.state = ParticleState.create(ids, x, v, np.full(len(ids), mass), dtype)
+        self._state = ParticleState.create(ids, x, v, np.full(len(ids), mass), dtype)
         self.n_particles = len(ids)
 
-        self.grid = _make_grid(scene, self.walls, self.H, dtype)
+        self.host_grid = _make_grid(scene, self.walls, self.H, dtype)
+        self.grid = self.host_grid
         self.grid_lo = self.grid.origin.astype(np.float64)
         self.periodic = int(self.grid.periodic)
         nu = sph.nu if self.viscosity in (Viscosity.MULLER, Viscosity.MORRIS) else 0.0
@@ -104,6 +117,26 @@ class Simulation:
         self.last_limit = ""
         self.prm_now = self.prm
         self.timers = StageTimers()
+        if backend == "cuda":
+            self.engine = cuda_backend.CudaStages(self)
+            self.grid = self.engine.grid  # the device grid: counts, permutation downloaded on demand
+        else:
+            self.engine = cpu.CpuStages(self)
+
+    @property
+    def state(self) -> ParticleState:
+        """The particles (host arrays). With the CUDA backend this is a mirror of the device arrays,
+        downloaded when read after the device has run a stage."""
+        self.engine.pull(self._state)
+        return self._state
+
+    @state.setter
+    def state(self, new: ParticleState):
+        """Replace the particles (halo exchange, checkpoint restore); a device uploads them before
+        its next stage."""
+        self._state = new
+        if self.backend == "cuda":
+            self.engine.device_stale = True
 
     def set_parameter(self, key: str, value):
         """Change a run-time settable value (nodes/control.py SETTABLE: body forces, viscosity, wall
@@ -158,18 +191,7 @@ class Simulation:
         return self.prm_now
 
     def _neighbours(self):
-        s = self.state
-        self.max_neighbours = max(self.max_neighbours, self.grid.bin(s))  # x -> (cell, id) order, lists
-
-    def _density(self):
-        s, w_ = self.state, self.walls
-        cpu.compute_density(int(self.kernel), int(self.eos), self.periodic, self.prm_now, s.n_owned, s.x, s.m,
-                            self.grid.nbr, self.grid.counts, w_.kind, w_.data, w_.tables, s.rho, s.p, self._fill)
-
-    def _forces(self):
-        s, w_, g = self.state, self.walls, self.grid
-        cpu.compute_acceleration(int(self.kernel), int(self.viscosity), self.periodic, self.prm_now, s.n_owned, s.x,
-                                 s.v, s.m, s.rho, s.p, g.nbr, g.counts, w_.kind, w_.data, w_.tables, self._fill, s.a)
+        self.max_neighbours = max(self.max_neighbours, self.engine.bin())  # x -> (cell, id) order, lists
 
     def step(self, dt_cap: float | None = None, halo=NULL_HALO):
         """Advance one time step; ``dt_cap`` shortens the last step of an --until run. ``halo`` must
@@ -182,42 +204,37 @@ class Simulation:
         """The one place that orders a step, as a generator: it yields only while ``halo`` waits for
         messages from other peers (never for a single process, whose halo is NULL_HALO), so the same
         ordered step runs in one process, in a peer process, or in an in-process cluster."""
-        s, t = self.state, self.timers
-        k, per = int(self.kernel), self.periodic
+        t, e = self.timers, self.engine
         prm = self._ramped_params()
         yield from halo.exchange_positions(self)                   # migrants; ghosts' id, x, v, m (exchange 1)
-        s = self.state
-        g = self.grid
         with t("grid"):
             self._neighbours()                                     # x                -> order, neighbour lists
         with t("density"):
-            self._density()                                        # x, m             -> rho, p
-        yield from halo.exchange_fields(self)                      # ghosts' rho, p   (exchange 2)
+            e.density(prm)                                         # x, m             -> rho, p
+        yield from self._exchange_fields(halo)                     # ghosts' rho, p   (exchange 2)
         with t("forces"):
-            self._forces()                                         # x, v, rho, p     -> a
+            e.forces(prm)                                          # x, v, rho, p     -> a
         if self.use_surface_tension:
-            with t("surface_tension"):                             # x, m, rho        -> a (+=)
-                cpu.add_surface_tension(k, per, prm, s.n_owned, s.x, s.m, s.rho, g.nbr, g.counts, s.a)
+            with t("surface_tension"):
+                e.surface_tension(prm)                             # x, m, rho        -> a (+=)
         if self.use_vorticity:
-            with t("vorticity"):                                   # x, v, rho        -> omega
-                cpu.compute_vorticity(k, per, prm, s.n_owned, s.x, s.v, s.m, s.rho, g.nbr, g.counts, self._omega)
-            yield from halo.exchange_ghosts(self, "omega", {"omega": self._omega})  # ghosts' omega (exchange 3)
-            with t("confinement"):                                 # omega            -> a (+=)
-                cpu.add_vorticity_confinement(k, per, prm, s.n_owned, s.x, s.m, s.rho, self._omega, g.nbr,
-                                              g.counts, s.a)
+            with t("vorticity"):
+                e.vorticity(prm)                                   # x, v, rho        -> omega
+            omega = e.fetch("omega")
+            yield from halo.exchange_ghosts(self, "omega", {"omega": omega})  # ghosts' omega (exchange 3)
+            if halo is not NULL_HALO:
+                e.store("omega", omega)
+            with t("confinement"):
+                e.confinement(prm)                                 # omega            -> a (+=)
         if self.use_xsph:
-            with t("xsph"):                                        # x, v, rho        -> xsph_dv
-                cpu.compute_xsph(k, per, prm, s.n_owned, s.x, s.v, s.m, s.rho, g.nbr, g.counts, self._xsph_dv)
+            with t("xsph"):
+                e.xsph(prm)                                        # x, v, rho        -> xsph_dv
         with t("timestep"):
-            stats = cpu.step_statistics(s.n_owned, s.x, s.v, s.a, s.rho, self.prm.rho0)
+            stats = e.statistics()                                 # local max |v|, |a|, compression
         stats = yield from halo.reduce_max(self, stats)            # global max |v|, |a|, compression
         dt = self._choose_dt(dt_cap, stats)                        # -> dt (+ health check)
         with t("integrate"):                                       # a                -> v, x; walls, periodic
-            cpu.integrate(int(self.integrator), int(self.use_xsph), s.n_owned, s.x, s.v, s.a, self._xsph_dv,
-                          self.dtype.type(dt), self.dtype.type(self.dt_prev))
-            cpu.enforce_boundaries(per, prm, s.n_owned, s.x, s.v, self._lo, self.walls.kind, self.walls.data,
-                                   self._leaked)
-            self.leaks += int(self._leaked[: s.n_owned].sum())
+            self.leaks += e.integrate(prm, self.dtype.type(dt), self.dtype.type(self.dt_prev))
         self.dt_prev = dt
         self.dt = dt
         self.t += dt
@@ -263,12 +280,18 @@ class Simulation:
 
     def refresh_stages(self, halo):
         """refresh() as a generator over a halo (see stages)."""
-        self._ramped_params()
+        prm = self._ramped_params()
         yield from halo.exchange_positions(self)
         self._neighbours()
-        self._density()
+        self.engine.density(prm)
+        yield from self._exchange_fields(halo)
+        self.engine.forces(prm)
+
+    def _exchange_fields(self, halo):
+        """Exchange 2; a device takes the ghosts' rho, p the halo wrote into the host mirror."""
         yield from halo.exchange_fields(self)
-        self._forces()
+        if halo is not NULL_HALO:
+            self.engine.to_device(("rho", "p"))
 
     def synchronised_velocity(self):
         """Owned rows' velocity at the full step (leapfrog stores half-step velocities)."""

@@ -1,5 +1,12 @@
-"""Compute backends: thin drivers that loop over particles and call the physics pair functions.
+"""Compute backends: thin drivers that loop over particles and call the per-row physics.
 
-``cpu`` drives with ``numba.njit(parallel=True)`` and ``prange``; the CUDA backend of a later issue
-drives the same functions from ``cuda.jit`` kernels. A backend is chosen once at start-up.
+``rows.py`` holds the work of one particle in every stage. ``cpu.py`` drives it with
+``numba.njit(parallel=True)`` and ``prange``; ``cuda.py`` drives the same functions from ``cuda.jit``
+kernels, one thread per row. A backend is chosen once at start-up (``Simulation(..., backend=)``);
+``cuda`` is imported only when asked for, so the package never needs CUDA to import.
 """
+
+
+class BackendUnavailable(RuntimeError):
+    """The requested backend cannot run here (``--backend cuda`` without a GPU); the message says why
+    and what to do instead."""

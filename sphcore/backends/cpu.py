@@ -1,18 +1,17 @@
-"""CPU drivers: one ``@njit(parallel=True)`` function per stage, gathering over neighbour lists.
+"""CPU drivers: one ``@njit(parallel=True)`` function per stage, a ``prange`` over the rows of
+``backends/rows.py``.
 
-Every driver loops over owned particles i (``prange``), visits i's neighbours j in list order and
-writes only row i (gather, never scatter: no atomics, no races, reproducible sums). Integer choices
-(kernel, EOS, viscosity model, integrator, whether any axis is periodic) are compile-time literals
-(``numba.literally``): each scene compiles, and caches, a driver containing only the branches it
-uses.
+Every driver loops over owned particles i (``prange``) and calls the stage's row function, which
+visits i's neighbours j in list order and writes only row i (gather, never scatter: no atomics, no
+races, reproducible sums). Integer choices (kernel, EOS, viscosity model, integrator, whether any
+axis is periodic) are compile-time literals (``numba.literally``): each scene compiles, and caches,
+a driver containing only the branches it uses.
 """
-import math
-
-import numpy as np
-
 from numba import literally, njit, prange
 
 from sphcore.backends.literal import literal_dispatch
+from sphcore.backends.rows import (acceleration_row, boundaries_row, confinement_row, density_row, integrate_row,
+                                   statistics_row, surface_tension_row, vorticity_row, xsph_row)
 
 # Floating-point licences for the neighbour passes: reassociation (the sums over neighbours become
 # partial sums LLVM can schedule; 25-30 % faster forces), contraction into FMA, reciprocals and
@@ -20,285 +19,91 @@ from sphcore.backends.literal import literal_dispatch
 # (sqrt stays exact). Results stay deterministic: the same compiled driver on the same neighbour
 # order gives the same bits, on one process or many.
 FASTMATH = {"reassoc", "contract", "arcp", "nsz"}
-from sphcore.physics.density import density_pair
-from sphcore.physics.eos import pressure
-from sphcore.physics.external import body_acceleration
-from sphcore.physics.kernels import dw_dr_over_r, lap_w_viscosity, w
-from sphcore.physics.pressure import pressure_pair
-from sphcore.physics.surface_tension import colour_gradient_pair, colour_laplacian_pair, surface_tension_factor
-from sphcore.physics.viscosity import artificial_pair, morris_pair, muller_pair
-from sphcore.physics.vorticity import confinement, curl_pair
-from sphcore.physics.walls import fill_fraction, signed_distance, wall_terms
-from sphcore.physics.xsph import xsph_pair
-
-
-@njit(cache=True, inline="always")
-def separation(periodic, x, i, j, prm):
-    """x_ij = x_i - x_j with the minimum-image convention on periodic axes. (np.rint keeps the
-    arithmetic in the array's precision; math.floor returns an integer and silently promotes
-    float32 runs to float64 — even here, because numba unifies types across branches.)"""
-    dx = x[i, 0] - x[j, 0]
-    dy = x[i, 1] - x[j, 1]
-    dz = x[i, 2] - x[j, 2]
-    if periodic:
-        if prm.period_x > 0.0:
-            dx -= prm.period_x * np.rint(dx / prm.period_x)
-        if prm.period_y > 0.0:
-            dy -= prm.period_y * np.rint(dy / prm.period_y)
-        if prm.period_z > 0.0:
-            dz -= prm.period_z * np.rint(dz / prm.period_z)
-    return dx, dy, dz
 
 
 @literal_dispatch(3)
 @njit(cache=True, parallel=True, fastmath=FASTMATH)
 def compute_density(kernel, eos, periodic, prm, n, x, m, nbr, counts, wall_kind, wall_data, wall_tables, rho, p,
                     fill):
-    """rho_i = m_i W(0) + sum_j m_j W_ij + theta_i rho0 Phi(d_i);  p_i = EOS(rho_i); fill_i = theta_i.
-    (density.py, eos.py, walls.py)"""
+    """rho, p and the wall fill fraction of rows 0..n-1 (rows.density_row)."""
     literally(kernel)
     literally(eos)
     literally(periodic)
     for i in prange(n):
-        rho_i = m[i] * prm.w0
-        for k in range(counts[i]):
-            j = nbr[i, k]
-            dx, dy, dz = separation(periodic, x, i, j, prm)
-            r_ij = math.sqrt(dx * dx + dy * dy + dz * dz)
-            rho_i += density_pair(kernel, m[j], r_ij, prm.H, prm.s_w)
-        drho, _, _, _ = wall_terms(kernel, prm, False, wall_kind, wall_data, wall_tables, x[i, 0], x[i, 1], x[i, 2],
-                                   0.0 * rho_i, rho_i, 0.0 * rho_i, 0.0 * rho_i, 0.0 * rho_i)
-        theta = fill_fraction(rho_i, drho, prm.rho0)
-        fill[i] = theta
-        rho_i += theta * drho
-        rho[i] = rho_i
-        p[i] = pressure(eos, rho_i, prm.rho0, prm.c0, prm.clamp_negative)
+        density_row(kernel, eos, periodic, prm, i, x, m, nbr, counts, wall_kind, wall_data, wall_tables, rho, p,
+                    fill)
 
 
 @literal_dispatch(3)
 @njit(cache=True, parallel=True, fastmath=FASTMATH)
 def compute_acceleration(kernel, viscosity, periodic, prm, n, x, v, m, rho, p, nbr, counts, wall_kind, wall_data,
                          wall_tables, fill, a):
-    """a_i = pressure + viscosity + body force + wall pressure.   (pressure.py, viscosity.py,
-    external.py, walls.py)"""
+    """a of rows 0..n-1: pressure, viscosity, body force, wall pressure (rows.acceleration_row)."""
     literally(kernel)
     literally(viscosity)
     literally(periodic)
     for i in prange(n):
-        bx, by, bz = body_acceleration(prm)
-        ax = bx * 1.0
-        ay = by * 1.0
-        az = bz * 1.0
-        rho_i = rho[i]
-        p_i = p[i]
-        p_rho2_i = p_i / (rho_i * rho_i)
-        for k in range(counts[i]):
-            j = nbr[i, k]
-            dx, dy, dz = separation(periodic, x, i, j, prm)
-            r2 = dx * dx + dy * dy + dz * dz
-            if r2 == 0.0:
-                continue  # coincident particles: no direction, no pressure force
-            r_ij = math.sqrt(r2)
-            dw_over_r = dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
-            f = pressure_pair(m[j], p_rho2_i, p[j], rho[j], dw_over_r)
-            if viscosity == 1:  # Viscosity.ARTIFICIAL
-                vdotx = ((v[i, 0] - v[j, 0]) * dx + (v[i, 1] - v[j, 1]) * dy + (v[i, 2] - v[j, 2]) * dz)
-                f += artificial_pair(m[j], vdotx, r2, rho_i, rho[j], dw_over_r, prm.alpha, prm.c0, prm.h)
-            ax += f * dx
-            ay += f * dy
-            az += f * dz
-            if viscosity == 2:  # Viscosity.MULLER: along v_j - v_i
-                g = muller_pair(m[j], rho_i, rho[j], lap_w_viscosity(r_ij, prm.H, prm.s_l), prm.mu)
-                ax += g * (v[j, 0] - v[i, 0])
-                ay += g * (v[j, 1] - v[i, 1])
-                az += g * (v[j, 2] - v[i, 2])
-            elif viscosity == 3:  # Viscosity.MORRIS: along v_i - v_j
-                g = morris_pair(m[j], r2, rho_i, rho[j], dw_over_r, prm.mu, prm.h)
-                ax += g * (v[i, 0] - v[j, 0])
-                ay += g * (v[i, 1] - v[j, 1])
-                az += g * (v[i, 2] - v[j, 2])
-        _, wx, wy, wz = wall_terms(kernel, prm, True, wall_kind, wall_data, wall_tables, x[i, 0], x[i, 1], x[i, 2],
-                                   p_i, rho_i, bx, by, bz)
-        ax += fill[i] * wx
-        ay += fill[i] * wy
-        az += fill[i] * wz
-        a[i, 0] = ax
-        a[i, 1] = ay
-        a[i, 2] = az
+        acceleration_row(kernel, viscosity, periodic, prm, i, x, v, m, rho, p, nbr, counts, wall_kind, wall_data,
+                         wall_tables, fill, a)
 
 
 @literal_dispatch(2)
 @njit(cache=True, parallel=True, fastmath=FASTMATH)
 def add_surface_tension(kernel, periodic, prm, n, x, m, rho, nbr, counts, a):
-    """Colour-field surface tension, a_i += -sigma lap c_i n_i / (|n_i| rho_i).   (surface_tension.py)"""
+    """a += colour-field surface tension (rows.surface_tension_row)."""
     literally(kernel)
     literally(periodic)
     for i in prange(n):
-        gx = 0.0 * prm.H
-        gy = 0.0 * prm.H
-        gz = 0.0 * prm.H
-        lap_c = 0.0 * prm.H
-        for k in range(counts[i]):
-            j = nbr[i, k]
-            dx, dy, dz = separation(periodic, x, i, j, prm)
-            r2 = dx * dx + dy * dy + dz * dz
-            if r2 == 0.0:
-                continue
-            r_ij = math.sqrt(r2)
-            f = colour_gradient_pair(m[j], rho[j], dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g))
-            gx += f * dx
-            gy += f * dy
-            gz += f * dz
-            lap_c += colour_laplacian_pair(m[j], rho[j], lap_w_viscosity(r_ij, prm.H, prm.s_l))
-        norm = math.sqrt(gx * gx + gy * gy + gz * gz)
-        s = surface_tension_factor(prm.sigma, lap_c, norm, rho[i], prm.st_threshold)
-        a[i, 0] += s * gx
-        a[i, 1] += s * gy
-        a[i, 2] += s * gz
+        surface_tension_row(kernel, periodic, prm, i, x, m, rho, nbr, counts, a)
 
 
 @literal_dispatch(2)
 @njit(cache=True, parallel=True, fastmath=FASTMATH)
 def compute_vorticity(kernel, periodic, prm, n, x, v, m, rho, nbr, counts, omega):
-    """omega_i = sum_j m_j / rho_j grad W_ij x (v_j - v_i).   (vorticity.py)"""
+    """omega of rows 0..n-1 (rows.vorticity_row)."""
     literally(kernel)
     literally(periodic)
     for i in prange(n):
-        ox = 0.0 * prm.H
-        oy = 0.0 * prm.H
-        oz = 0.0 * prm.H
-        for k in range(counts[i]):
-            j = nbr[i, k]
-            dx, dy, dz = separation(periodic, x, i, j, prm)
-            r2 = dx * dx + dy * dy + dz * dz
-            if r2 == 0.0:
-                continue
-            r_ij = math.sqrt(r2)
-            g = dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
-            cx, cy, cz = curl_pair(m[j] / rho[j], v[j, 0] - v[i, 0], v[j, 1] - v[i, 1], v[j, 2] - v[i, 2],
-                                   g * dx, g * dy, g * dz)
-            ox += cx
-            oy += cy
-            oz += cz
-        omega[i, 0] = ox
-        omega[i, 1] = oy
-        omega[i, 2] = oz
+        vorticity_row(kernel, periodic, prm, i, x, v, m, rho, nbr, counts, omega)
 
 
 @literal_dispatch(2)
 @njit(cache=True, parallel=True, fastmath=FASTMATH)
 def add_vorticity_confinement(kernel, periodic, prm, n, x, m, rho, omega, nbr, counts, a):
-    """a_i += eps N_i x omega_i, N = eta/|eta|, eta_i = sum_j m_j/rho_j |omega_j| grad W_ij."""
+    """a += vorticity confinement (rows.confinement_row)."""
     literally(kernel)
     literally(periodic)
     for i in prange(n):
-        ex = 0.0 * prm.H
-        ey = 0.0 * prm.H
-        ez = 0.0 * prm.H
-        for k in range(counts[i]):
-            j = nbr[i, k]
-            dx, dy, dz = separation(periodic, x, i, j, prm)
-            r2 = dx * dx + dy * dy + dz * dz
-            if r2 == 0.0:
-                continue
-            r_ij = math.sqrt(r2)
-            wj = math.sqrt(omega[j, 0] ** 2 + omega[j, 1] ** 2 + omega[j, 2] ** 2)
-            g = m[j] / rho[j] * wj * dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
-            ex += g * dx
-            ey += g * dy
-            ez += g * dz
-        norm = math.sqrt(ex * ex + ey * ey + ez * ez)
-        if norm > 0.0:
-            fx, fy, fz = confinement(prm.vorticity_eps, ex / norm, ey / norm, ez / norm,
-                                     omega[i, 0], omega[i, 1], omega[i, 2])
-            a[i, 0] += fx
-            a[i, 1] += fy
-            a[i, 2] += fz
+        confinement_row(kernel, periodic, prm, i, x, m, rho, omega, nbr, counts, a)
 
 
 @literal_dispatch(2)
 @njit(cache=True, parallel=True, fastmath=FASTMATH)
 def compute_xsph(kernel, periodic, prm, n, x, v, m, rho, nbr, counts, dv):
-    """dv_i = eps sum_j m_j / rho_ij (v_j - v_i) W_ij (the drift uses v + dv).   (xsph.py)"""
+    """XSPH velocity correction dv of rows 0..n-1 (rows.xsph_row)."""
     literally(kernel)
     literally(periodic)
     for i in prange(n):
-        sx = 0.0 * prm.H
-        sy = 0.0 * prm.H
-        sz = 0.0 * prm.H
-        for k in range(counts[i]):
-            j = nbr[i, k]
-            dx, dy, dz = separation(periodic, x, i, j, prm)
-            r_ij = math.sqrt(dx * dx + dy * dy + dz * dz)
-            f = xsph_pair(m[j], rho[i], rho[j], w(kernel, r_ij, prm.H, prm.s_w))
-            sx += f * (v[j, 0] - v[i, 0])
-            sy += f * (v[j, 1] - v[i, 1])
-            sz += f * (v[j, 2] - v[i, 2])
-        dv[i, 0] = prm.xsph_eps * sx
-        dv[i, 1] = prm.xsph_eps * sy
-        dv[i, 2] = prm.xsph_eps * sz
+        xsph_row(kernel, periodic, prm, i, x, v, m, rho, nbr, counts, dv)
 
 
 @literal_dispatch(2)
 @njit(cache=True, parallel=True)
 def integrate(integrator, use_xsph, n, x, v, a, dv, dt, dt_prev):
-    """Symplectic Euler: v += dt a; x += dt v.  Leapfrog KDK with staggered velocities:
-    v_{n+1/2} = v_{n-1/2} + (dt_prev + dt)/2 a_n; x += dt v_{n+1/2}. XSPH adds dv to the drift."""
+    """v, x of rows 0..n-1 advanced by dt (rows.integrate_row)."""
     literally(integrator)
     literally(use_xsph)
-    if integrator == 0:
-        kick = dt
-    else:
-        kick = 0.5 * (dt_prev + dt)
     for i in prange(n):
-        for c in range(3):
-            v[i, c] += kick * a[i, c]
-            if use_xsph:
-                x[i, c] += dt * (v[i, c] + dv[i, c])
-            else:
-                x[i, c] += dt * v[i, c]
-
-
-@njit(cache=True, inline="always")
-def wrap(x, lo, L):
-    """Map x into [lo, lo + L) on a periodic axis (L > 0); unchanged if L == 0."""
-    if L > 0.0:
-        s = x - lo
-        s -= L * math.floor(s / L)
-        if s >= L:  # round-off of the floor above
-            s = 0.0 * L
-        return lo + s
-    return x
+        integrate_row(integrator, use_xsph, i, x, v, a, dv, dt, dt_prev)
 
 
 @literal_dispatch(1)
 @njit(cache=True, parallel=True)
 def enforce_boundaries(periodic, prm, n, x, v, lo, wall_kind, wall_data, leaked):
-    """Wrap periodic axes; push particles closer than wall_gap back out with restitution/friction;
-    mark particles found behind a wall (d < 0) in ``leaked``.   (walls.py)"""
+    """Periodic wrap, wall collision guard and leak marks of rows 0..n-1 (rows.boundaries_row)."""
     literally(periodic)
     for i in prange(n):
-        if periodic:
-            x[i, 0] = wrap(x[i, 0], lo[0], prm.period_x)
-            x[i, 1] = wrap(x[i, 1], lo[1], prm.period_y)
-            x[i, 2] = wrap(x[i, 2], lo[2], prm.period_z)
-        hit = 0
-        for sweep in range(2):  # a second sweep settles corners where two walls push in turn
-            for q in range(wall_kind.shape[0]):
-                d, nx, ny, nz = signed_distance(wall_kind[q], wall_data[q], x[i, 0], x[i, 1], x[i, 2])
-                if d < 0.0 and sweep == 0:
-                    hit = 1
-                if d < prm.wall_gap:
-                    push = prm.wall_gap - d
-                    x[i, 0] += push * nx
-                    x[i, 1] += push * ny
-                    x[i, 2] += push * nz
-                    vn = v[i, 0] * nx + v[i, 1] * ny + v[i, 2] * nz
-                    if vn < 0.0:
-                        for c, nc in ((0, nx), (1, ny), (2, nz)):
-                            vt = v[i, c] - vn * nc
-                            v[i, c] = vt * (1.0 - prm.friction) - prm.restitution * vn * nc
-        leaked[i] = hit
+        boundaries_row(periodic, prm, i, x, v, lo, wall_kind, wall_data, leaked)
 
 
 @njit(cache=True, parallel=True)
@@ -312,14 +117,82 @@ def step_statistics(n, x, v, a, rho, rho0):
     dev = 0.0
     bad = 0
     for i in prange(n):
-        v2 = v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1] + v[i, 2] * v[i, 2]
-        a2 = a[i, 0] * a[i, 0] + a[i, 1] * a[i, 1] + a[i, 2] * a[i, 2]
-        r = rho[i] / rho0 - 1.0
-        s = v2 + a2 + r + x[i, 0] + x[i, 1] + x[i, 2]
-        if not math.isfinite(s):
+        v2, a2, r, finite = statistics_row(i, x, v, a, rho, rho0)
+        if not finite:
             bad += 1
         else:
             vmax2 = max(vmax2, v2)
             amax2 = max(amax2, a2)
             dev = max(dev, r)
     return vmax2, amax2, dev, bad
+
+
+class CpuStages:
+    """The stages of ``Simulation.stages`` on the CPU: the drivers above over the simulation's host
+    state (which is the only copy, so the host <-> device hooks do nothing)."""
+
+    def __init__(self, sim):
+        self.sim = sim
+
+    def pull(self, state):
+        pass
+
+    def to_device(self, names):
+        pass
+
+    def fetch(self, name):
+        return getattr(self.sim, "_" + name)
+
+    def store(self, name, host):
+        pass
+
+    def bin(self):
+        return self.sim.grid.bin(self.sim.state)  # x -> (cell, id) order, neighbour lists
+
+    def density(self, prm):
+        sim = self.sim
+        s, w_, g = sim.state, sim.walls, sim.grid
+        compute_density(int(sim.kernel), int(sim.eos), sim.periodic, prm, s.n_owned, s.x, s.m, g.nbr, g.counts,
+                        w_.kind, w_.data, w_.tables, s.rho, s.p, sim._fill)
+
+    def forces(self, prm):
+        sim = self.sim
+        s, w_, g = sim.state, sim.walls, sim.grid
+        compute_acceleration(int(sim.kernel), int(sim.viscosity), sim.periodic, prm, s.n_owned, s.x, s.v, s.m,
+                             s.rho, s.p, g.nbr, g.counts, w_.kind, w_.data, w_.tables, sim._fill, s.a)
+
+    def surface_tension(self, prm):
+        sim = self.sim
+        s, g = sim.state, sim.grid
+        add_surface_tension(int(sim.kernel), sim.periodic, prm, s.n_owned, s.x, s.m, s.rho, g.nbr, g.counts, s.a)
+
+    def vorticity(self, prm):
+        sim = self.sim
+        s, g = sim.state, sim.grid
+        compute_vorticity(int(sim.kernel), sim.periodic, prm, s.n_owned, s.x, s.v, s.m, s.rho, g.nbr, g.counts,
+                          sim._omega)
+
+    def confinement(self, prm):
+        sim = self.sim
+        s, g = sim.state, sim.grid
+        add_vorticity_confinement(int(sim.kernel), sim.periodic, prm, s.n_owned, s.x, s.m, s.rho, sim._omega,
+                                  g.nbr, g.counts, s.a)
+
+    def xsph(self, prm):
+        sim = self.sim
+        s, g = sim.state, sim.grid
+        compute_xsph(int(sim.kernel), sim.periodic, prm, s.n_owned, s.x, s.v, s.m, s.rho, g.nbr, g.counts,
+                     sim._xsph_dv)
+
+    def statistics(self):
+        sim = self.sim
+        s = sim.state
+        return step_statistics(s.n_owned, s.x, s.v, s.a, s.rho, sim.prm.rho0)
+
+    def integrate(self, prm, dt, dt_prev):
+        sim = self.sim
+        s = sim.state
+        integrate(int(sim.integrator), int(sim.use_xsph), s.n_owned, s.x, s.v, s.a, sim._xsph_dv, dt, dt_prev)
+        enforce_boundaries(sim.periodic, prm, s.n_owned, s.x, s.v, sim._lo, sim.walls.kind, sim.walls.data,
+                           sim._leaked)
+        return int(sim._leaked[: s.n_owned].sum())

@@ -1,0 +1,743 @@
+"""CUDA backend (numba-cuda): the stages of a step as thin kernels over the shared row functions.
+
+Every kernel runs one thread per row and calls the same ``*_row`` function as the CPU driver
+(``backends/rows.py``, ``grid.neighbour_row``...), so the physics exists once. Kernels are built per
+combination of compile-time choices (kernel family, EOS, viscosity model...) by small factories and
+kept for the process; the choice integers are closure constants, so NVVM prunes unused branches as
+numba does for the CPU literals.
+
+Binning on the device is the CPU algorithm, step for step: cell keys; histogram (atomic counts);
+inclusive prefix scan; scatter (atomic slots: arbitrary order within a bin); insertion sort of each
+bin by particle id. The result — rows ordered by (cell, id), neighbour lists scanned in the same cell
+order — is therefore the same as on the CPU, whatever order the atomics ran in. Force passes
+gather over the neighbour list and write only their own row: no atomics there. Reductions (the
+step statistics, the longest neighbour list) reduce per block in shared memory, then combine the
+block results with one atomic max per block (max and integer sums do not depend on order).
+
+Neighbour lists are stored column-major (``nbr[i, k]`` at ``i + k * n``): consecutive threads read
+consecutive words. The row functions index ``nbr[i, k]`` on both backends; numba compiles the layout.
+
+Under ``NUMBA_ENABLE_CUDASIM=1`` (tests without a GPU) the kernels run in numba's simulator and the
+shared row functions run as their CPU-compiled selves (the simulator hands kernels array stand-ins,
+which ``_device`` unwraps). That checks the kernels' indexing, launches, binning and data movement;
+``compile_all`` checks that every kernel compiles for a real GPU (PTX, no GPU needed).
+"""
+from __future__ import annotations
+
+import functools
+import math
+
+import numba
+import numpy as np
+from numba import cuda
+
+from sphcore import grid as grid_mod
+from sphcore.backends import BackendUnavailable, rows
+
+SIMULATOR = bool(numba.config.ENABLE_CUDASIM)
+BLOCK = 128          # threads per block for row kernels
+SCAN_CHUNK = 64      # elements scanned sequentially by one thread in the prefix scan
+
+
+class CudaUnavailable(BackendUnavailable):
+    """--backend cuda without a usable GPU."""
+
+
+def probe() -> tuple[bool, str]:
+    """(True, device description) when kernels can run here (a GPU, or the simulator), else
+    (False, why not). Never raises: numba-cuda reports a missing driver in several ways."""
+    if SIMULATOR:
+        return True, "numba CUDA simulator (NUMBA_ENABLE_CUDASIM=1)"
+    try:
+        if not cuda.is_available():
+            return False, "no CUDA driver or GPU found (numba.cuda.is_available() is False)"
+        dev = cuda.get_current_device()
+        name = dev.name.decode() if isinstance(dev.name, bytes) else str(dev.name)
+        return True, f"{name} (compute capability {dev.compute_capability[0]}.{dev.compute_capability[1]})"
+    except Exception as exc:  # noqa: BLE001 - numba-cuda raises various non-ImportErrors here
+        return False, f"CUDA is not usable: {exc}"
+
+
+def require(device: int | None = None) -> str:
+    """Select GPU ``device`` (default: the current one, GPU 0) and describe it; raise CudaUnavailable
+    with the reason when there is none."""
+    ok, why = probe()
+    if not ok:
+        raise CudaUnavailable(f"--backend cuda: {why}. Run with --backend cpu, or set NUMBA_ENABLE_CUDASIM=1 "
+                              "to use numba's (slow) CUDA simulator")
+    if device is not None and not SIMULATOR:
+        count = len(cuda.gpus)
+        cuda.select_device(device % count)
+        ok, why = probe()
+    return why
+
+
+def _unwrap(a):
+    """The numpy array behind the simulator's in-kernel array stand-in (anything else unchanged)."""
+    item = getattr(a, "__dict__", {}).get("_item")
+    if item is not None and hasattr(item, "_ary"):
+        return item._ary
+    return a
+
+
+def _device(fn):
+    """How a kernel calls a shared ``@njit`` function: the function itself on a GPU (numba-cuda
+    compiles it as a device function); under the simulator, a wrapper running its CPU compilation on
+    the unwrapped arrays."""
+    if not SIMULATOR:
+        return fn
+
+    def call(*args):
+        return fn(*[_unwrap(a) for a in args])
+    return call
+
+
+def blocks(n: int, block: int = BLOCK) -> int:
+    return max((n + block - 1) // block, 1)
+
+
+# -- physics kernels (one per stage and choice combination) ---------------------------------------
+
+@functools.cache
+def density_kernel(kernel, eos, periodic):
+    row = _device(rows.density_row)
+
+    @cuda.jit
+    def density(prm, n, x, m, nbr, counts, wall_kind, wall_data, wall_tables, rho, p, fill):
+        i = cuda.grid(1)
+        if i < n:
+            row(kernel, eos, periodic, prm, i, x, m, nbr, counts, wall_kind, wall_data, wall_tables, rho, p, fill)
+    return density
+
+
+@functools.cache
+def acceleration_kernel(kernel, viscosity, periodic):
+    row = _device(rows.acceleration_row)
+
+    @cuda.jit
+    def acceleration(prm, n, x, v, m, rho, p, nbr, counts, wall_kind, wall_data, wall_tables, fill, a):
+        i = cuda.grid(1)
+        if i < n:
+            row(kernel, viscosity, periodic, prm, i, x, v, m, rho, p, nbr, counts, wall_kind, wall_data,
+                wall_tables, fill, a)
+    return acceleration
+
+
+@functools.cache
+def surface_tension_kernel(kernel, periodic):
+    row = _device(rows.surface_tension_row)
+
+    @cuda.jit
+    def surface_tension(prm, n, x, m, rho, nbr, counts, a):
+        i = cuda.grid(1)
+        if i < n:
+            row(kernel, periodic, prm, i, x, m, rho, nbr, counts, a)
+    return surface_tension
+
+
+@functools.cache
+def vorticity_kernel(kernel, periodic):
+    row = _device(rows.vorticity_row)
+
+    @cuda.jit
+    def vorticity(prm, n, x, v, m, rho, nbr, counts, omega):
+        i = cuda.grid(1)
+        if i < n:
+            row(kernel, periodic, prm, i, x, v, m, rho, nbr, counts, omega)
+    return vorticity
+
+
+@functools.cache
+def confinement_kernel(kernel, periodic):
+    row = _device(rows.confinement_row)
+
+    @cuda.jit
+    def confinement(prm, n, x, m, rho, omega, nbr, counts, a):
+        i = cuda.grid(1)
+        if i < n:
+            row(kernel, periodic, prm, i, x, m, rho, omega, nbr, counts, a)
+    return confinement
+
+
+@functools.cache
+def xsph_kernel(kernel, periodic):
+    row = _device(rows.xsph_row)
+
+    @cuda.jit
+    def xsph(prm, n, x, v, m, rho, nbr, counts, dv):
+        i = cuda.grid(1)
+        if i < n:
+            row(kernel, periodic, prm, i, x, v, m, rho, nbr, counts, dv)
+    return xsph
+
+
+@functools.cache
+def integrate_kernel(integrator, use_xsph):
+    row = _device(rows.integrate_row)
+
+    @cuda.jit
+    def integrate(n, x, v, a, dv, dt, dt_prev):
+        i = cuda.grid(1)
+        if i < n:
+            row(integrator, use_xsph, i, x, v, a, dv, dt, dt_prev)
+    return integrate
+
+
+@functools.cache
+def boundaries_kernel(periodic):
+    row = _device(rows.boundaries_row)
+
+    @cuda.jit
+    def boundaries(prm, n, x, v, lo, wall_kind, wall_data, leaked, leak_count):
+        i = cuda.grid(1)
+        if i < n:
+            row(periodic, prm, i, x, v, lo, wall_kind, wall_data, leaked)
+            if leaked[i]:
+                cuda.atomic.add(leak_count, 0, 1)  # rare: only particles found behind a wall
+    return boundaries
+
+
+@functools.cache
+def statistics_kernel():
+    row = _device(rows.statistics_row)
+
+    @cuda.jit
+    def statistics(n, x, v, a, rho, rho0, out):
+        """out[0:3] = max(out, block max of |v|^2, |a|^2, compression); out[3] += NaN/Inf rows."""
+        sv = cuda.shared.array(BLOCK, numba.float64)
+        sa = cuda.shared.array(BLOCK, numba.float64)
+        sd = cuda.shared.array(BLOCK, numba.float64)
+        sb = cuda.shared.array(BLOCK, numba.float64)
+        t = cuda.threadIdx.x
+        i = cuda.grid(1)
+        sv[t] = 0.0
+        sa[t] = 0.0
+        sd[t] = 0.0
+        sb[t] = 0.0
+        if i < n:
+            v2, a2, r, finite = row(i, x, v, a, rho, rho0)
+            if finite:
+                sv[t] = v2
+                sa[t] = a2
+                sd[t] = max(r, 0.0)
+            else:
+                sb[t] = 1.0
+        cuda.syncthreads()
+        s = BLOCK // 2
+        while s > 0:
+            if t < s:
+                sv[t] = max(sv[t], sv[t + s])
+                sa[t] = max(sa[t], sa[t + s])
+                sd[t] = max(sd[t], sd[t + s])
+                sb[t] += sb[t + s]
+            cuda.syncthreads()
+            s //= 2
+        if t == 0:
+            cuda.atomic.max(out, 0, sv[0])
+            cuda.atomic.max(out, 1, sa[0])
+            cuda.atomic.max(out, 2, sd[0])
+            cuda.atomic.add(out, 3, sb[0])
+    return statistics
+
+
+# -- binning kernels -------------------------------------------------------------------------------
+
+@functools.cache
+def _binning_kernels():
+    cell_index = _device(grid_mod.cell_index)
+    sort_bin_row = _device(grid_mod.sort_bin_row)
+    cell_range_row = _device(grid_mod.cell_range_row)
+
+    @cuda.jit
+    def cell_keys(x, n, n_owned, origin, inv_cell, ncell, keys, bin_count):
+        """keys[i] = cell key of row i (+ ncells for ghost rows); bin_count[key + 1] += 1."""
+        i = cuda.grid(1)
+        if i < n:
+            nx, ny, nz = ncell[0], ncell[1], ncell[2]
+            ix = cell_index(x, i, 0, origin, inv_cell, ncell)
+            iy = cell_index(x, i, 1, origin, inv_cell, ncell)
+            iz = cell_index(x, i, 2, origin, inv_cell, ncell)
+            key = (iz * ny + iy) * nx + ix
+            if i >= n_owned:
+                key += nx * ny * nz
+            keys[i] = key
+            cuda.atomic.add(bin_count, key + 1, 1)
+
+    @cuda.jit
+    def scatter(keys, n, fill, perm):
+        """perm[slot] = i with slot taken atomically from its bin (order fixed by the bin sort)."""
+        i = cuda.grid(1)
+        if i < n:
+            slot = cuda.atomic.add(fill, keys[i], 1)
+            perm[slot] = i
+
+    @cuda.jit
+    def sort_bins(nbins, bin_start, perm, ids):
+        c = cuda.grid(1)
+        if c < nbins:
+            sort_bin_row(c, bin_start, perm, ids)
+
+    @cuda.jit
+    def cell_ranges(ncells, bin_start, cell_begin, cell_end, mixed):
+        c = cuda.grid(1)
+        if c < ncells:
+            if cell_range_row(c, bin_start, ncells, cell_begin, cell_end):
+                cuda.atomic.add(mixed, 0, 1)  # only when a migration was missed
+
+    return cell_keys, scatter, sort_bins, cell_ranges
+
+
+@cuda.jit
+def _scan_chunks(a, n, chunk, sums):
+    """In-place inclusive scan of a[t*chunk : (t+1)*chunk] by thread t; sums[t] = its total."""
+    t = cuda.grid(1)
+    lo = t * chunk
+    if lo < n:
+        hi = min(lo + chunk, n)
+        acc = a[lo] * 0
+        for k in range(lo, hi):
+            acc += a[k]
+            a[k] = acc
+        sums[t] = acc
+
+
+@cuda.jit
+def _add_offsets(a, n, chunk, scanned_sums):
+    """a[k] += total of all chunks before k's chunk."""
+    k = cuda.grid(1)
+    if k < n:
+        t = k // chunk
+        if t > 0:
+            a[k] += scanned_sums[t - 1]
+
+
+def inclusive_scan(a, n: int):
+    """In-place inclusive prefix sum of device array a[:n] (chunked, recursive over chunk totals;
+    deterministic: integer sums)."""
+    nchunks = (n + SCAN_CHUNK - 1) // SCAN_CHUNK
+    sums = cuda.device_array(nchunks, dtype=a.dtype)
+    _scan_chunks[blocks(nchunks), BLOCK](a, n, SCAN_CHUNK, sums)
+    if nchunks > 1:
+        inclusive_scan(sums, nchunks)
+        _add_offsets[blocks(n), BLOCK](a, n, SCAN_CHUNK, sums)
+
+
+@cuda.jit
+def _fill_int(a, n, value):
+    i = cuda.grid(1)
+    if i < n:
+        a[i] = value
+
+
+@cuda.jit
+def _copy_1d(src, n, dst):
+    i = cuda.grid(1)
+    if i < n:
+        dst[i] = src[i]
+
+
+@cuda.jit
+def _gather_1d(src, perm, n, dst):
+    k = cuda.grid(1)
+    if k < n:
+        dst[k] = src[perm[k]]
+
+
+@cuda.jit
+def _gather_2d(src, perm, n, dst):
+    k = cuda.grid(1)
+    if k < n:
+        i = perm[k]
+        for c in range(src.shape[1]):
+            dst[k, c] = src[i, c]
+
+
+@cuda.jit
+def _max_int(values, n, out):
+    """out[0] = max(out[0], max(values[:n])): block reduction in shared memory, one atomic per block."""
+    s_max = cuda.shared.array(BLOCK, numba.int32)
+    t = cuda.threadIdx.x
+    i = cuda.grid(1)
+    s_max[t] = values[i] if i < n else 0
+    cuda.syncthreads()
+    s = BLOCK // 2
+    while s > 0:
+        if t < s:
+            s_max[t] = max(s_max[t], s_max[t + s])
+        cuda.syncthreads()
+        s //= 2
+    if t == 0:
+        cuda.atomic.max(out, 0, s_max[0])
+
+
+@functools.cache
+def _neighbour_kernel(periodic):
+    row = _device(grid_mod.neighbour_row)
+
+    @cuda.jit
+    def neighbours(n_query, x, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell, period, H2, nbr,
+                   counts):
+        i = cuda.grid(1)
+        if i < n_query:
+            row(periodic, i, x, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell, period, H2, nbr,
+                counts)
+    return neighbours
+
+
+class DeviceGrid:
+    """The host grid's geometry plus the per-step sort and neighbour lists on the device.
+
+    Mirrors ``grid.Grid``: after ``bin``, rows are ordered by (cell, id) (owned first, ghosts after);
+    ``nbr`` (n, capacity) int32, column-major, and ``counts`` (n,) int32 are the neighbour lists.
+    ``counts`` and ``last_permutation`` read on the host are downloaded on demand (outputs, halo).
+    """
+
+    def __init__(self, host: grid_mod.Grid, capacity: int = 64):
+        self.host = host
+        self.dtype = host.dtype
+        self.ncells = host.ncells
+        self.periodic = host.periodic
+        self.capacity = capacity
+        self.d_origin = cuda.to_device(host.origin)
+        self.d_cell = cuda.to_device(host.cell)
+        self.d_inv_cell = cuda.to_device(host.inv_cell)
+        self.d_ncell = cuda.to_device(host.ncell)
+        self.d_period = cuda.to_device(host.period)
+        self.bin_start = cuda.device_array(2 * self.ncells + 1, dtype=np.int64)
+        self.cell_begin = cuda.device_array(self.ncells, dtype=np.int64)
+        self.cell_end = cuda.device_array(self.ncells, dtype=np.int64)
+        self._fill = cuda.device_array(2 * self.ncells, dtype=np.int64)
+        self._small = cuda.device_array(1, dtype=np.int64)
+        self._max = cuda.device_array(1, dtype=np.int32)
+        self.d_nbr = cuda.device_array((0, capacity), dtype=np.int32, order="F")
+        self.d_counts = cuda.device_array(0, dtype=np.int32)
+        self.d_perm = cuda.device_array(0, dtype=np.int64)
+        self._keys = cuda.device_array(0, dtype=np.int64)
+        self.n = 0
+        self.n_query = 0
+        self.contiguous = True
+
+    # host-side views used by outputs and the halo
+    @property
+    def counts(self):
+        return self.d_counts[: self.n_query].copy_to_host()
+
+    @property
+    def last_permutation(self):
+        return self.d_perm[: self.n].copy_to_host()
+
+    def cells_of(self, x):
+        return self.host.cells_of(x)
+
+    def __getattr__(self, name):
+        """Geometry (origin, cell, ncell, period...) from the host grid."""
+        if name == "host":
+            raise AttributeError(name)
+        return getattr(self.host, name)
+
+    def sort(self, d):
+        """Order the device state ``d`` (DeviceState) by (cell, id): owned rows, then ghost rows."""
+        n = d.n
+        if self._keys.shape[0] < n:
+            self._keys = cuda.device_array(n, dtype=np.int64)
+            self.d_perm = cuda.device_array(n, dtype=np.int64)
+        self.n = n
+        cell_keys, scatter, sort_bins, cell_ranges = _binning_kernels()
+        nb = self.bin_start.shape[0]
+        _fill_int[blocks(nb), BLOCK](self.bin_start, nb, 0)
+        if n:
+            cell_keys[blocks(n), BLOCK](d.x, n, d.n_owned, self.d_origin, self.d_inv_cell, self.d_ncell,
+                                        self._keys, self.bin_start)
+        inclusive_scan(self.bin_start, nb)
+        _copy_1d[blocks(nb - 1), BLOCK](self.bin_start, nb - 1, self._fill)
+        if n:
+            scatter[blocks(n), BLOCK](self._keys, n, self._fill, self.d_perm)
+        sort_bins[blocks(nb - 1), BLOCK](nb - 1, self.bin_start, self.d_perm, d.id)
+        _fill_int[1, 1](self._small, 1, 0)
+        cell_ranges[blocks(self.ncells), BLOCK](self.ncells, self.bin_start, self.cell_begin, self.cell_end,
+                                                self._small)
+        mixed = int(self._small.copy_to_host()[0])
+        if mixed:
+            raise RuntimeError(f"{mixed} grid cells hold both owned and ghost particles: a migration was missed")
+        self.contiguous = d.n_owned == n
+        d.reorder(self.d_perm)
+
+    def build_neighbours(self, x, n_query):
+        """Neighbour lists of rows 0..n_query-1; grows the capacity and rebuilds when a list is longer.
+        Returns the longest list."""
+        self.n_query = n_query
+        if self.d_nbr.shape[0] < n_query:
+            self.d_nbr = cuda.device_array((n_query, self.capacity), dtype=np.int32, order="F")
+            self.d_counts = cuda.device_array(n_query, dtype=np.int32)
+        if n_query == 0:
+            return 0
+        kernel = _neighbour_kernel(int(self.periodic))
+        while True:
+            kernel[blocks(n_query), BLOCK](n_query, x, self.contiguous, self.cell_begin, self.cell_end,
+                                           self.d_origin, self.d_cell, self.d_inv_cell, self.d_ncell, self.d_period,
+                                           self.host.H2, self.d_nbr, self.d_counts)
+            _fill_int[1, 1](self._max, 1, 0)
+            _max_int[blocks(n_query), BLOCK](self.d_counts, n_query, self._max)
+            most = int(self._max.copy_to_host()[0])
+            if most <= self.capacity:
+                return most
+            self.capacity = int(most * 1.25) + 8
+            self.d_nbr = cuda.device_array((max(n_query, self.d_nbr.shape[0]), self.capacity), dtype=np.int32,
+                                           order="F")
+
+    def bin(self, d):
+        self.sort(d)
+        return self.build_neighbours(d.x, d.n_owned)
+
+
+FIELDS = ("id", "x", "v", "m", "a", "rho", "p")
+SORTED = ("id", "x", "v", "m")  # reordered by the grid; the rest is recomputed every step
+
+
+class DeviceState:
+    """The particle arrays on the device (the same fields, shapes and units as ParticleState), the
+    per-step scratch of the solver, and the wall description."""
+
+    def __init__(self, dtype):
+        self.dtype = np.dtype(dtype)
+        self.n = 0
+        self.n_owned = 0
+        self.arrays = {}
+        self._spare = {}
+
+    def upload(self, state, names=FIELDS):
+        """Copy host ParticleState arrays to the device (all rows)."""
+        self.n = state.n
+        self.n_owned = state.n_owned
+        for name in names:
+            host = np.ascontiguousarray(getattr(state, name))
+            dev = self.arrays.get(name)
+            if dev is None or dev.shape != host.shape:
+                self.arrays[name] = cuda.to_device(host)
+            else:
+                dev.copy_to_device(host)
+
+    def download(self, state, names=FIELDS):
+        """Copy device arrays into the host ParticleState (resized to the device's row count)."""
+        for name in names:
+            setattr(state, name, self.arrays[name][: self.n].copy_to_host())
+        state.n_owned = self.n_owned
+
+    def reorder(self, perm):
+        """Rows of the sorted fields gathered by ``perm`` (row k <- row perm[k]); double-buffered."""
+        n = self.n
+        for name in SORTED:
+            src = self.arrays[name]
+            dst = self._spare.get(name)
+            if dst is None or dst.shape != src.shape:
+                dst = cuda.device_array(src.shape, dtype=src.dtype)
+            if n:
+                if src.ndim == 2:
+                    _gather_2d[blocks(n), BLOCK](src, perm, n, dst)
+                else:
+                    _gather_1d[blocks(n), BLOCK](src, perm, n, dst)
+            self.arrays[name] = dst
+            self._spare[name] = src
+
+    def __getattr__(self, name):
+        arrays = self.__dict__.get("arrays", {})
+        if name in arrays:
+            return arrays[name]
+        raise AttributeError(name)
+
+
+class CudaStages:
+    """The stages of ``Simulation.stages`` on the device. The particle arrays live here for the
+    whole run; the simulation's host ``state`` is a mirror, downloaded only when something on the
+    host reads it (outputs, frames, a peer's halo) and uploaded again when the host replaced it."""
+
+    def __init__(self, sim):
+        self.sim = sim
+        self.dtype = sim.dtype
+        self.d = DeviceState(sim.dtype)
+        self.grid = DeviceGrid(sim.host_grid)
+        w = sim.walls
+        self.wall_kind = cuda.to_device(np.ascontiguousarray(w.kind))
+        self.wall_data = cuda.to_device(np.ascontiguousarray(w.data))
+        self.wall_tables = cuda.to_device(np.ascontiguousarray(w.tables))
+        self.lo = cuda.to_device(sim._lo)
+        self.leak_count = cuda.device_array(1, dtype=np.int64)
+        self.stats = cuda.device_array(4, dtype=np.float64)
+        self.scratch_n = -1
+        self.device_stale = True   # the host state was replaced: upload before the next stage
+        self.host_stale = False    # the device ran a stage since the last download
+
+    # -- host <-> device ---------------------------------------------------------------------------
+    def pull(self, state):
+        """Bring the host mirror up to date (called by Simulation.state)."""
+        if self.host_stale and not self.device_stale:
+            self.d.download(state)
+            self.host_stale = False
+
+    def push_if_needed(self):
+        if self.device_stale:
+            state = self.sim._state
+            self.d.upload(state)
+            self._scratch(state.n)
+            self.device_stale = False
+
+    def to_device(self, names):
+        """Upload host arrays changed in place (ghost rows of rho, p after exchange 2)."""
+        self.d.upload(self.sim._state, names)
+
+    def fetch(self, name):
+        """A host copy of a per-row scratch array (omega) for a halo exchange."""
+        return getattr(self, "d_" + name).copy_to_host()
+
+    def store(self, name, host):
+        getattr(self, "d_" + name).copy_to_device(host)
+
+    def _scratch(self, n):
+        if n == self.scratch_n:
+            return
+        dt = self.dtype
+        sim = self.sim
+        self.d_xsph_dv = cuda.device_array((n if sim.use_xsph else 1, 3), dtype=dt)
+        self.d_omega = cuda.device_array((n if sim.use_vorticity else 1, 3), dtype=dt)
+        self.d_leaked = cuda.device_array(max(n, 1), dtype=np.int8)
+        self.d_fill = cuda.device_array(max(n, 1), dtype=dt)
+        self.scratch_n = n
+
+    def _begin(self):
+        self.push_if_needed()
+        self.host_stale = True
+
+    # -- stages ------------------------------------------------------------------------------------
+    def bin(self):
+        self._begin()
+        most = self.grid.bin(self.d)
+        cuda.synchronize()
+        return most
+
+    def density(self, prm):
+        self._begin()
+        sim, d, g = self.sim, self.d, self.grid
+        n = d.n_owned
+        if n:
+            density_kernel(int(sim.kernel), int(sim.eos), sim.periodic)[blocks(n), BLOCK](
+                prm, n, d.x, d.m, g.d_nbr, g.d_counts, self.wall_kind, self.wall_data, self.wall_tables, d.rho,
+                d.p, self.d_fill)
+        cuda.synchronize()
+
+    def forces(self, prm):
+        self._begin()
+        sim, d, g = self.sim, self.d, self.grid
+        n = d.n_owned
+        if n:
+            acceleration_kernel(int(sim.kernel), int(sim.viscosity), sim.periodic)[blocks(n), BLOCK](
+                prm, n, d.x, d.v, d.m, d.rho, d.p, g.d_nbr, g.d_counts, self.wall_kind, self.wall_data,
+                self.wall_tables, self.d_fill, d.a)
+        cuda.synchronize()
+
+    def surface_tension(self, prm):
+        self._begin()
+        sim, d, g = self.sim, self.d, self.grid
+        if d.n_owned:
+            surface_tension_kernel(int(sim.kernel), sim.periodic)[blocks(d.n_owned), BLOCK](
+                prm, d.n_owned, d.x, d.m, d.rho, g.d_nbr, g.d_counts, d.a)
+        cuda.synchronize()
+
+    def vorticity(self, prm):
+        self._begin()
+        sim, d, g = self.sim, self.d, self.grid
+        if d.n_owned:
+            vorticity_kernel(int(sim.kernel), sim.periodic)[blocks(d.n_owned), BLOCK](
+                prm, d.n_owned, d.x, d.v, d.m, d.rho, g.d_nbr, g.d_counts, self.d_omega)
+        cuda.synchronize()
+
+    def confinement(self, prm):
+        self._begin()
+        sim, d, g = self.sim, self.d, self.grid
+        if d.n_owned:
+            confinement_kernel(int(sim.kernel), sim.periodic)[blocks(d.n_owned), BLOCK](
+                prm, d.n_owned, d.x, d.m, d.rho, self.d_omega, g.d_nbr, g.d_counts, d.a)
+        cuda.synchronize()
+
+    def xsph(self, prm):
+        self._begin()
+        sim, d, g = self.sim, self.d, self.grid
+        if d.n_owned:
+            xsph_kernel(int(sim.kernel), sim.periodic)[blocks(d.n_owned), BLOCK](
+                prm, d.n_owned, d.x, d.v, d.m, d.rho, g.d_nbr, g.d_counts, self.d_xsph_dv)
+        cuda.synchronize()
+
+    def statistics(self):
+        """(max |v|^2, max |a|^2, max compression, NaN/Inf rows) of the owned rows."""
+        self._begin()
+        d = self.d
+        self.stats.copy_to_device(np.zeros(4))
+        if d.n_owned:
+            statistics_kernel()[blocks(d.n_owned), BLOCK](d.n_owned, d.x, d.v, d.a, d.rho,
+                                                           self.sim.prm.rho0, self.stats)
+        s = self.stats.copy_to_host()
+        return float(s[0]), float(s[1]), float(s[2]), int(s[3])
+
+    def integrate(self, prm, dt, dt_prev):
+        """Advance v, x; periodic wrap and wall guard; returns the number of leaked particles."""
+        self._begin()
+        sim, d = self.sim, self.d
+        n = d.n_owned
+        self.leak_count.copy_to_device(np.zeros(1, dtype=np.int64))
+        if n:
+            integrate_kernel(int(sim.integrator), int(sim.use_xsph))[blocks(n), BLOCK](
+                n, d.x, d.v, d.a, self.d_xsph_dv, dt, dt_prev)
+            boundaries_kernel(sim.periodic)[blocks(n), BLOCK](
+                prm, n, d.x, d.v, self.lo, self.wall_kind, self.wall_data, self.d_leaked, self.leak_count)
+        return int(self.leak_count.copy_to_host()[0])
+
+
+def compile_all(kernel=0, eos=0, viscosity=1, periodic=0, integrator=0, dtype="f32", cc=(9, 0)):
+    """Compile every kernel of one choice combination to PTX for compute capability ``cc`` without
+    running it (needs NVVM, not a GPU): proves the shared row functions are valid CUDA. Returns
+    {kernel name: PTX text}."""
+    from numba import types
+    from sphcore.params import make_params
+
+    f = types.float32 if dtype == "f32" else types.float64
+    nptype = np.float32 if dtype == "f32" else np.float64
+    prm = make_params(nptype, H=1.0, h=0.5, s_w=1.0, s_g=1.0, s_l=1.0, w0=1.0, rho0=1000.0, c0=10.0,
+                      clamp_negative=True, alpha=0.1, mu=0.0, gravity=(0.0, -9.81, 0.0), external=(0.0, 0.0, 0.0),
+                      period=(0.0, 0.0, 0.0), xsph_eps=0.0, sigma=0.0, st_threshold=0.0, vorticity_eps=0.0,
+                      restitution=0.0, friction=0.0, wall_gap=0.0, dx=0.5, inv_s=1.0, dim3=True, wall_table_end=1.0)
+    P = numba.typeof(prm)
+    v1, v2 = types.Array(f, 1, "C"), types.Array(f, 2, "C")
+    i1, i8, i8v = types.Array(types.int32, 1, "C"), types.Array(types.int8, 1, "C"), types.Array(types.int64, 1, "C")
+    nbr = types.Array(types.int32, 2, "F")
+    wk, wd = types.Array(types.int32, 1, "C"), types.Array(f, 2, "C")
+    n = types.int64
+    cell_keys, scatter, sort_bins, cell_ranges = _binning_kernels()
+    sigs = {
+        "density": (density_kernel(kernel, eos, periodic), (P, n, v2, v1, nbr, i1, wk, wd, wd, v1, v1, v1)),
+        "acceleration": (acceleration_kernel(kernel, viscosity, periodic),
+                         (P, n, v2, v2, v1, v1, v1, nbr, i1, wk, wd, wd, v1, v2)),
+        "surface_tension": (surface_tension_kernel(kernel, periodic), (P, n, v2, v1, v1, nbr, i1, v2)),
+        "vorticity": (vorticity_kernel(kernel, periodic), (P, n, v2, v2, v1, v1, nbr, i1, v2)),
+        "confinement": (confinement_kernel(kernel, periodic), (P, n, v2, v1, v1, v2, nbr, i1, v2)),
+        "xsph": (xsph_kernel(kernel, periodic), (P, n, v2, v2, v1, v1, nbr, i1, v2)),
+        "integrate": (integrate_kernel(integrator, 1), (n, v2, v2, v2, v2, f, f)),
+        "boundaries": (boundaries_kernel(periodic), (P, n, v2, v2, v1, wk, wd, i8, i8v)),
+        "statistics": (statistics_kernel(), (n, v2, v2, v2, v1, f, types.Array(types.float64, 1, "C"))),
+        "cell_keys": (cell_keys, (v2, n, n, v1, v1, i8v, i8v, i8v)),
+        "scatter": (scatter, (i8v, n, i8v, i8v)),
+        "sort_bins": (sort_bins, (n, i8v, i8v, i8v)),
+        "cell_ranges": (cell_ranges, (n, i8v, i8v, i8v, i8v)),
+        "neighbours": (_neighbour_kernel(periodic), (n, v2, types.boolean, i8v, i8v, v1, v1, v1, i8v, v1, f, nbr, i1)),
+        "max_int": (_max_int, (i1, n, i1)),
+        "scan_chunks": (_scan_chunks, (i8v, n, n, i8v)),
+    }
+    # Device functions called from a kernel (the non-inlined wall functions) are compiled for the
+    # current device's compute capability; without a GPU there is none, so answer ``cc`` for it.
+    import types as pytypes
+    import numba.cuda.dispatcher as cuda_dispatcher
+    real = cuda_dispatcher.get_current_device
+    if not cuda.is_available():
+        cuda_dispatcher.get_current_device = lambda: pytypes.SimpleNamespace(compute_capability=cc)
+    try:
+        return {name: cuda.compile_ptx(disp.py_func, sig, cc=cc)[0] for name, (disp, sig) in sigs.items()}
+    finally:
+        cuda_dispatcher.get_current_device = real
