@@ -3,12 +3,13 @@
 #   make test   set up .venv and run the default test suite
 # Others:
 #   make test-slow     the heavier suites (pytest -m slow)
+#   make test-gpu      the CUDA tests on a real GPU (pytest -m gpu) and a short GPU benchmark
 #   make bench         sph bench (add the reference codes with: bash scripts/setup_bench.sh; make bench-external)
 
 PY := .venv/bin/python
 SPH := .venv/bin/sph
 
-.PHONY: setup demo test test-slow bench bench-external
+.PHONY: setup demo test test-slow test-gpu bench bench-external
 
 setup:
 	bash scripts/setup.sh
@@ -21,6 +22,10 @@ test: setup
 
 test-slow: setup
 	$(PY) -m pytest -m slow
+
+test-gpu: setup
+	$(PY) -m pytest -m gpu tests/test_cuda.py
+	$(SPH) bench --backend cuda --sizes 100000 1000000 --precisions f32 f64 --steps 200
 
 bench: setup
 	$(SPH) bench --json runs/bench/bench.json

@@ -38,6 +38,19 @@ def cell_index(x, i, d, origin, inv_cell, ncell):
     return min(max(int(math.floor((x[i, d] - origin[d]) * inv_cell[d])), 0), ncell[d] - 1)
 
 
+@njit(cache=True, inline="always")
+def minimum_image(d, L):
+    """d (a coordinate difference) mapped to [-L/2, L/2] on a periodic axis of length L. Positions
+    are wrapped into the period every step, so |d| < L and one shift suffices. (A branch, not
+    d - L rint(d / L): numba-cuda has no rint, and math.floor would promote float32 to float64.)"""
+    half = 0.5 * L
+    if d > half:
+        return d - L
+    if d < -half:
+        return d + L
+    return d
+
+
 @njit(cache=True, parallel=True)
 def compute_cell_keys(x, n_owned, origin, inv_cell, ncell, keys):
     """keys[i] = cell key of row i, plus ncells for ghost rows (i >= n_owned): sorting by key puts
@@ -153,11 +166,11 @@ def _scan_range(i, lo, hi, x, xi, yi, zi, H2, period, periodic, nbr, count, cap)
         dz = zi - x[j, 2]
         if periodic:
             if period[0] > 0.0:
-                dx -= period[0] * np.rint(dx / period[0])
+                dx = minimum_image(dx, period[0])
             if period[1] > 0.0:
-                dy -= period[1] * np.rint(dy / period[1])
+                dy = minimum_image(dy, period[1])
             if period[2] > 0.0:
-                dz -= period[2] * np.rint(dz / period[2])
+                dz = minimum_image(dz, period[2])
         if dx * dx + dy * dy + dz * dz < H2 and j != i:
             if count < cap:
                 nbr[i, count] = j

@@ -13,9 +13,9 @@ float32.
 """
 import math
 
-import numpy as np
 from numba import njit
 
+from sphcore.grid import minimum_image
 from sphcore.physics.density import density_pair
 from sphcore.physics.eos import pressure
 from sphcore.physics.external import body_acceleration
@@ -30,19 +30,17 @@ from sphcore.physics.xsph import xsph_pair
 
 @njit(cache=True, inline="always")
 def separation(periodic, x, i, j, prm):
-    """x_ij = x_i - x_j with the minimum-image convention on periodic axes. (np.rint keeps the
-    arithmetic in the array's precision; math.floor returns an integer and silently promotes
-    float32 runs to float64 — even here, because numba unifies types across branches.)"""
+    """x_ij = x_i - x_j with the minimum-image convention on periodic axes (grid.minimum_image)."""
     dx = x[i, 0] - x[j, 0]
     dy = x[i, 1] - x[j, 1]
     dz = x[i, 2] - x[j, 2]
     if periodic:
         if prm.period_x > 0.0:
-            dx -= prm.period_x * np.rint(dx / prm.period_x)
+            dx = minimum_image(dx, prm.period_x)
         if prm.period_y > 0.0:
-            dy -= prm.period_y * np.rint(dy / prm.period_y)
+            dy = minimum_image(dy, prm.period_y)
         if prm.period_z > 0.0:
-            dz -= prm.period_z * np.rint(dz / prm.period_z)
+            dz = minimum_image(dz, prm.period_z)
     return dx, dy, dz
 
 
