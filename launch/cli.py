@@ -69,7 +69,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="run until simulated time T (s)")
     run.add_argument("--out", type=Path, default=None, help="output folder (default: runs/<scene name>)")
     run.add_argument("--precision", choices=("f32", "f64"), default=None,
-                     help="floating point precision (default: the scene's run.precision)")
+                     help="floating point precision (default: the scene's run.precision; auto = f64 on the "
+                          "CPU, f32 with --backend cuda)")
     run.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                      help="override a scene key, validated like the file (repeatable), "
                           "e.g. --set particles.spacing=0.02 --set sph.kernel=cubic_spline")
@@ -131,7 +132,8 @@ def build_parser() -> argparse.ArgumentParser:
                       help="another peer's endpoint, e.g. tcp/10.0.0.2:7447 (repeatable)")
     peer.add_argument("--out", type=Path, default=None, help="output folder on rank 0 (default: runs/<scene name>)")
     peer.add_argument("--precision", choices=("f32", "f64"), default=None,
-                      help="floating point precision (default: the scene's run.precision)")
+                      help="floating point precision (default: the scene's run.precision; auto = f64 on the "
+                          "CPU, f32 with --backend cuda)")
     plen = peer.add_mutually_exclusive_group()
     plen.add_argument("--steps", type=_positive_int, default=None, help="number of steps (default: time.steps)")
     plen.add_argument("--until", type=_positive_float, default=None, metavar="T", help="run until simulated time T")
@@ -201,9 +203,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     validate = sub.add_parser(
         "validate", help="compare with reference solutions and experiments; exit 1 if a metric fails",
-        description="Run validation cases (hydrostatic, dam_break vs Martin & Moyce, taylor_green), print one line "
+        description="Run validation cases (hydrostatic, dam_break vs Martin & Moyce, taylor_green, oscillating_drop "
+                    "vs Monaghan & Rafiee), print one line "
                     "per metric (name value tolerance PASS|FAIL) and write a plot per case.")
-    validate.add_argument("cases", nargs="*", metavar="CASE", help="hydrostatic, dam_break, taylor_green")
+    validate.add_argument("cases", nargs="*", metavar="CASE",
+                          help="hydrostatic, dam_break, taylor_green, oscillating_drop")
     validate.add_argument("--all", action="store_true", help="every case")
     validate.add_argument("--quick", action="store_true", help="coarser resolution: under ~2 minutes per case")
     validate.add_argument("--out", type=Path, default=Path("runs/validate"), help="folder for the plots")

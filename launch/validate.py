@@ -1,7 +1,7 @@
 """``sph validate``: run validation cases against reference data; one line per metric, a plot per
 case, exit code 1 if any metric fails.
 
-    sph validate CASE [--quick] [--out DIR]      CASE: hydrostatic, dam_break, taylor_green
+    sph validate CASE [--quick] [--out DIR]      CASE: hydrostatic, dam_break, taylor_green, oscillating_drop
     sph validate --all [--quick]
 
 Each case is a function of (quick, out folder) returning its metrics; ``--quick`` uses a coarser
@@ -175,7 +175,99 @@ def hydrostatic(quick: bool, out: Path, backend: str = "cpu") -> list[Metric]:
             Metric("hydrostatic.density_deviation", dev, 0.01, "max |rho/rho0 - 1| below the surface layer")]
 
 
-CASES = {"hydrostatic": hydrostatic, "dam_break": dam_break, "taylor_green": taylor_green}
+def drop_semi_axes(omega: float, rate: float, radius: float, t_end: float, dt: float = 1.0e-4):
+    """Exact semi-axes of the drop (Monaghan & Rafiee 2013): an incompressible 2D drop in the central
+    field -omega^2 r with the velocity u = A x, v = -A y stays an ellipse a(t) b(t) = R^2 with
+    a' = A a, b' = -A b and, from zero pressure on its boundary,
+        A' = (A^2 + omega^2) (b^2 - a^2) / (a^2 + b^2).
+    Integrated with classical Runge-Kutta; returns (t, a, b)."""
+    def f(s):
+        a, b, A = s
+        return np.array([A * a, -A * b, (A * A + omega * omega) * (b * b - a * a) / (a * a + b * b)])
+    n = int(math.ceil(t_end / dt))
+    out = np.empty((n + 1, 3))
+    s = np.array([radius, radius, rate], dtype=float)
+    out[0] = s
+    for k in range(n):
+        k1 = f(s)
+        k2 = f(s + 0.5 * dt * k1)
+        k3 = f(s + 0.5 * dt * k2)
+        k4 = f(s + dt * k3)
+        s = s + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+        out[k + 1] = s
+    return np.arange(n + 1) * dt, out[:, 0], out[:, 1]
+
+
+def _maxima(t, y):
+    """Times and values of the local maxima of a sampled signal (parabola through each peak sample)."""
+    found = []
+    for k in range(1, len(y) - 1):
+        if y[k] > y[k - 1] and y[k] >= y[k + 1]:
+            denom = y[k - 1] - 2 * y[k] + y[k + 1]
+            shift = 0.5 * (y[k - 1] - y[k + 1]) / denom if denom != 0 else 0.0
+            h = 0.5 * (t[k + 1] - t[k - 1])
+            found.append((t[k] + shift * h, y[k] - 0.25 * (y[k - 1] - y[k + 1]) * shift))
+    return found
+
+
+def oscillating_drop(quick: bool, out: Path, backend: str = "cpu") -> list[Metric]:
+    """Drop in a central force field (Monaghan & Rafiee 2013): oscillation period and amplitude of the
+    semi-axis against the exact ellipse solution (period 4.567375 s for omega = 1, A = 0.5)."""
+    dx = 0.05 if quick else 0.025
+    scene = load_scene(CONFIGS / "oscillating_drop_2d.toml", [f"particles.spacing={dx}"])
+    omega, rate = scene.forces.central_omega, scene.fluid.flow_rate
+    radius = scene.fluid.blocks[0].radius
+    c = np.array(scene.fluid.flow_center[:2])
+    t_end = 10.0  # two periods
+    t_ref, a_ref, b_ref = drop_semi_axes(omega, rate, radius, t_end)
+    ref_peaks = _maxima(t_ref, a_ref)
+    sim = Simulation(scene, "f64", backend)
+
+    def moments():
+        x = sim.state.x[: sim.state.n_owned, :2] - c
+        return np.mean(x[:, 0] ** 2), np.mean(x[:, 1] ** 2)
+    # a uniform ellipse has <x^2> = a^2 / 4: semi-axes from the second moments, normalised by the
+    # initial (lattice) disc so the discretisation of the circle does not bias them
+    mx0, my0 = moments()
+    times, a_sim, b_sim = [0.0], [radius], [radius]
+    while sim.t < t_end:
+        sim.step(dt_cap=t_end - sim.t)
+        if sim.step_index % 10 == 0 or sim.t >= t_end:
+            mx, my = moments()
+            times.append(sim.t)
+            a_sim.append(radius * math.sqrt(mx / mx0))
+            b_sim.append(radius * math.sqrt(my / my0))
+    peaks = _maxima(np.array(times), np.array(a_sim))
+    period_ref = ref_peaks[1][0] - ref_peaks[0][0]
+    amp_ref = ref_peaks[0][1] - radius
+    if len(peaks) >= 2:
+        period_err = abs((peaks[1][0] - peaks[0][0]) - period_ref) / period_ref
+        amp_err = abs((peaks[0][1] - radius) - amp_ref) / amp_ref
+    else:
+        period_err = amp_err = float("nan")
+    plt = _plot()
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ax.plot(times, a_sim, label="a (x semi-axis), sphfluid")
+    ax.plot(times, b_sim, label="b (y semi-axis), sphfluid")
+    ax.plot(t_ref, a_ref, "k--", lw=1, label="exact (Monaghan & Rafiee 2013)")
+    ax.plot(t_ref, b_ref, "k--", lw=1)
+    ax.set_xlabel("t (s)")
+    ax.set_ylabel("semi-axis (m)")
+    ax.legend(loc="lower right", fontsize=8)
+    ax.set_title(f"Oscillating drop, omega = {omega:g}, A = {rate:g}, dx = {dx:g} m")
+    fig.tight_layout()
+    fig.savefig(out / "oscillating_drop.png", dpi=100)
+    plt.close(fig)
+    note = f"exact {period_ref:.4f} s, {sim.n_particles} particles"
+    if len(peaks) >= 2:
+        note = f"{peaks[1][0] - peaks[0][0]:.4f} s vs " + note
+    return [Metric("oscillating_drop.period_relative", period_err, 0.02, note),
+            Metric("oscillating_drop.amplitude_relative", amp_err, 0.05,
+                   f"first maximum of a - R vs exact {amp_ref:.4f} m")]
+
+
+CASES = {"hydrostatic": hydrostatic, "dam_break": dam_break, "taylor_green": taylor_green,
+         "oscillating_drop": oscillating_drop}
 
 
 def run_validate(names: list[str], quick: bool, out: Path, backend: str = "cpu") -> int:

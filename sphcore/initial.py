@@ -86,5 +86,10 @@ def generate_particles(scene: Scene, walls: Walls):
         U = scene.fluid.flow_speed
         v[:, 0] += -U * np.cos(k[:, 0]) * np.sin(k[:, 1])
         v[:, 1] += U * np.sin(k[:, 0]) * np.cos(k[:, 1])
+    elif scene.fluid.initial_flow == "straining":
+        c = np.array(scene.fluid.flow_center, dtype=float)
+        A = scene.fluid.flow_rate
+        v[:, 0] += A * (x[:, 0] - c[0])
+        v[:, 1] += -A * (x[:, 1] - c[1])
     ids = np.arange(len(x), dtype=np.int64)
     return ids, x, v

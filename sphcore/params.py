@@ -27,6 +27,10 @@ class Params(NamedTuple):
     external_x: float   # constant external acceleration (m/s^2)
     external_y: float
     external_z: float
+    central_omega2: float  # omega^2 of the central force field a = -omega^2 (x - c) (1/s^2); 0 = off
+    central_x: float    # its centre c (m)
+    central_y: float
+    central_z: float
     period_x: float     # period length along x, 0 if x is not periodic (m)
     period_y: float
     period_z: float

@@ -65,9 +65,12 @@ class Block:
 @dataclass(frozen=True)
 class Fluid:
     rest_density: float = spec(1000.0, "rest density rho0 (kg/m^3)", range=(0.0, math.inf), min_exclusive=True)
-    initial_flow: str = spec("none", "analytic initial velocity field added to the blocks' velocity",
-                             choices=("none", "taylor_green"))
+    initial_flow: str = spec("none", "analytic initial velocity field added to the blocks' velocity; straining: "
+                             "u = A (x - c), v = -A (y - c) (the oscillating drop)",
+                             choices=("none", "taylor_green", "straining"))
     flow_speed: float = spec(1.0, "taylor_green: velocity amplitude U (m/s)", range=(0.0, math.inf))
+    flow_rate: float = spec(0.0, "straining: the strain rate A (1/s)", range=(-math.inf, math.inf))
+    flow_center: tuple = spec((0.0, 0.0, 0.0), "straining: the centre c of the flow (m)", length=VEC)
     blocks: list = spec([], "regions filled with fluid on a lattice of the given spacing ([[fluid.blocks]])")
 
 
@@ -99,6 +102,9 @@ class Forces:
     external: tuple = spec((0.0, 0.0, 0.0), "constant external acceleration, any direction (m/s^2)", length=VEC)
     ramp_time: float = spec(0.0, "gravity and external force rise smoothly from 0 over this time (s); 0 = at once",
                             range=(0.0, 1.0e6))
+    central_omega: float = spec(0.0, "central force field a = -omega^2 (x - central_center) (1/s; 0 = off), e.g. "
+                                "the oscillating drop of Monaghan & Rafiee 2013", range=(0.0, 1.0e6))
+    central_center: tuple = spec((0.0, 0.0, 0.0), "centre of the central force field (m)", length=VEC)
 
 
 @dataclass(frozen=True)
@@ -159,7 +165,8 @@ class Boundary:
 
 @dataclass(frozen=True)
 class Run:
-    precision: str = spec("f64", "floating point precision (--precision overrides)", choices=("f32", "f64"))
+    precision: str = spec("auto", "floating point precision; auto = f64 on the CPU, f32 on a GPU (--precision "
+                                  "overrides)", choices=("auto", "f32", "f64"))
     log_every: int = spec(0, "steps between progress log lines when not on a terminal (0 = every 5 % of the run)",
                           range=(0, 10**9))
     max_density_ratio: float = spec(3.0, "stop with a diagnostic if some rho/rho0 exceeds this",

@@ -59,6 +59,8 @@ class Simulation:
             self.device_name = cuda_backend.require(device)
         self.scene = scene
         self.precision = precision or scene.run.precision
+        if self.precision == "auto":  # float32 is the GPU's native precision; float64 the CPU's default
+            self.precision = "f32" if backend == "cuda" else "f64"
         if self.precision not in DTYPES:
             raise ValueError(f"precision must be one of {', '.join(DTYPES)}, got {self.precision!r}")
         dtype = DTYPES[self.precision]
@@ -94,6 +96,7 @@ class Simulation:
             dtype, H=self.H, h=self.h, s_w=s_w, s_g=s_g, s_l=s_l, w0=w(int(self.kernel), 0.0, self.H, s_w),
             rho0=rho0, c0=sph.sound_speed, clamp_negative=bool(sph.clamp_negative_pressure), alpha=sph.alpha,
             mu=rho0 * nu, gravity=scene.forces.gravity, external=scene.forces.external,
+            central_omega2=scene.forces.central_omega ** 2, central=scene.forces.central_center,
             period=tuple(self.grid.period), xsph_eps=scene.terms.xsph, sigma=scene.terms.surface_tension,
             st_threshold=scene.terms.surface_threshold / dx, vorticity_eps=scene.terms.vorticity_confinement,
             restitution=scene.boundary.restitution, friction=scene.boundary.friction,
@@ -187,7 +190,7 @@ class Simulation:
             p = self.prm
             self.prm_now = p._replace(gravity_x=p.gravity_x * f, gravity_y=p.gravity_y * f, gravity_z=p.gravity_z * f,
                                       external_x=p.external_x * f, external_y=p.external_y * f,
-                                      external_z=p.external_z * f)
+                                      external_z=p.external_z * f, central_omega2=p.central_omega2 * f)
         return self.prm_now
 
     def _neighbours(self):

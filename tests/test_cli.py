@@ -88,7 +88,9 @@ def test_scene_toml_reloads_to_the_same_scene(tiny_run):
     assert proc.returncode == 0, proc.stderr
     written = load_scene(out / "scene.toml")
     original = load_scene(TINY)
-    assert dataclasses.replace(written, source=original.source) == original
+    assert original.run.precision == "auto" and written.run.precision == "f64"  # resolved: what ran
+    ran = dataclasses.replace(original, run=dataclasses.replace(original.run, precision="f64"))
+    assert dataclasses.replace(written, source=original.source) == ran
 
 
 # ---------------------------------------------------------------------------------------------
@@ -137,7 +139,8 @@ BAD_RUNS = [
     ("peers-dims", [TINY, "--peers", "3", "--set", "decomposition.dims=[2, 1, 1]"],
      ["--peers 3", "decomposition.dims = [2, 1, 1]", "2 blocks"]),
     ("peers-too-many", [TINY, "--peers", "1000"], ["--peers 1000", "do not fit"]),
-    ("backend-cuda", [TINY, "--backend", "cuda"], ["--backend cuda", "not available"]),
+    ("device-without-cuda", [TINY, "--device", "1"], ["--device 1", "only with --backend cuda"]),
+    # (--backend cuda without a GPU: tests/test_cuda.py, in a subprocess without the simulator)
     ("record-suffix", [TINY, "--record", "x.txt"], ["--record", "x.txt", "must end in .rrd"]),
     ("no-viewer-spawn", [TINY, "--no-viewer", "--spawn"], ["--no-viewer", "--spawn"]),
 ]

@@ -702,6 +702,7 @@ def compile_all(kernel=0, eos=0, viscosity=1, periodic=0, integrator=0, dtype="f
     nptype = np.float32 if dtype == "f32" else np.float64
     prm = make_params(nptype, H=1.0, h=0.5, s_w=1.0, s_g=1.0, s_l=1.0, w0=1.0, rho0=1000.0, c0=10.0,
                       clamp_negative=True, alpha=0.1, mu=0.0, gravity=(0.0, -9.81, 0.0), external=(0.0, 0.0, 0.0),
+                      central_omega2=1.0, central=(0.0, 0.0, 0.0),
                       period=(0.0, 0.0, 0.0), xsph_eps=0.0, sigma=0.0, st_threshold=0.0, vorticity_eps=0.0,
                       restitution=0.0, friction=0.0, wall_gap=0.0, dx=0.5, inv_s=1.0, dim3=True, wall_table_end=1.0)
     P = numba.typeof(prm)

@@ -18,7 +18,7 @@ from numba import njit
 from sphcore.grid import minimum_image
 from sphcore.physics.density import density_pair
 from sphcore.physics.eos import pressure
-from sphcore.physics.external import body_acceleration
+from sphcore.physics.external import body_acceleration, central_acceleration
 from sphcore.physics.kernels import dw_dr_over_r, lap_w_viscosity, w
 from sphcore.physics.pressure import pressure_pair
 from sphcore.physics.surface_tension import colour_gradient_pair, colour_laplacian_pair, surface_tension_factor
@@ -69,6 +69,11 @@ def acceleration_row(kernel, viscosity, periodic, prm, i, x, v, m, rho, p, nbr, 
     """a_i = pressure + viscosity + body force + wall pressure.   (pressure.py, viscosity.py,
     external.py, walls.py)"""
     bx, by, bz = body_acceleration(prm)
+    if prm.central_omega2 > 0.0:
+        cx, cy, cz = central_acceleration(prm, x[i, 0], x[i, 1], x[i, 2])
+        bx += cx
+        by += cy
+        bz += cz
     ax = bx * 1.0
     ay = by * 1.0
     az = bz * 1.0

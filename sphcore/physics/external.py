@@ -1,4 +1,5 @@
-"""Body forces: gravity plus a constant external acceleration whose direction the scene sets.
+"""Body forces: gravity plus a constant external acceleration whose direction the scene sets, and an
+optional central force field.
 
 Seed 000 let the user turn the force direction with a slider; here the scene gives ``gravity`` and
 ``external`` (both m/s^2) and the total body acceleration g + f_ext is applied to every particle:
@@ -7,6 +8,10 @@ Seed 000 let the user turn the force direction with a slider; here the scene giv
 zeta(t) ramps the load in smoothly over ``ramp_time`` T (Adami, Hu & Adams 2012, section 4.1):
 zeta = (sin((t/T - 1/2) pi) + 1) / 2 for t < T, 1 afterwards. A fluid that starts at rest density
 then settles into hydrostatic balance without the acoustic ringing of a sudden load.
+
+The central field a_i = -omega^2 (x_i - c) (Monaghan & Rafiee 2013, section 5.1: "a drop of fluid
+in a central force field") holds a free drop together without surface tension; its rotating-ellipse
+solution is the oscillating-drop validation case. It is evaluated only when omega > 0.
 """
 import math
 
@@ -23,3 +28,10 @@ from numba import njit
 def body_acceleration(prm):
     """Total body acceleration (ax, ay, az) = gravity + external in m/s^2 (fields of Params)."""
     return prm.gravity_x + prm.external_x, prm.gravity_y + prm.external_y, prm.gravity_z + prm.external_z
+
+
+@njit(cache=True, inline="always")
+def central_acceleration(prm, x, y, z):
+    """-omega^2 (x - c) at (x, y, z) in m/s^2."""
+    return (-prm.central_omega2 * (x - prm.central_x), -prm.central_omega2 * (y - prm.central_y),
+            -prm.central_omega2 * (z - prm.central_z))
