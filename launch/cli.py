@@ -2,7 +2,7 @@
 
     sph run CONFIG.toml [--peers N] [--precision f32|f64] [--steps S | --until T] [--out DIR] [--set section.key=value ...]
     sph peer CONFIG.toml --rank R --world N --listen ENDPOINT [--connect ENDPOINT ...] --run-id ID
-    sph viewer | control | render | validate | replay   (see sph COMMAND --help)
+    sph viewer | control | render | validate | study | replay   (see sph COMMAND --help)
     sph bench [--sizes ...] [--precisions ...] [--threads ...] [--external] [--peers 1 2]
     sph scene CONFIG.toml            print the fully resolved scene (after --set overrides)
 
@@ -214,6 +214,19 @@ def build_parser() -> argparse.ArgumentParser:
     validate.add_argument("--backend", choices=("cpu", "cuda"), default="cpu",
                           help="run the cases on the CPU or on a GPU (float64 either way)")
 
+    study = sub.add_parser(
+        "study", help="measure error and cost of every accuracy knob (kernel, resolution, precision, CFL)",
+        description="Run the validation cases over kernel x resolution, then precision and CFL at every "
+                    "resolution, and time each optional term; write OUT/study.json, OUT/pareto.png (error "
+                    "against wall seconds per simulated second) and OUT/study.md (tables, cheapest setting per "
+                    "error budget). Takes about half an hour on 2 cores; --quick: a few minutes.")
+    study.add_argument("cases", nargs="*", metavar="CASE", help="oscillating_drop, dam_break, taylor_green "
+                       "(default: all three)")
+    study.add_argument("--quick", action="store_true", help="coarsest resolution only (a few minutes)")
+    study.add_argument("--out", type=Path, default=Path("runs/study"), help="output folder")
+    study.add_argument("--docs", action="store_true", help="also update docs/ACCURACY.md and docs/img/pareto.png")
+    study.add_argument("--no-terms", action="store_true", help="skip timing the optional terms")
+
     replay = sub.add_parser("replay", help="open a recording (.rrd) in the Rerun viewer",
                             description="Open FILE.rrd in the native Rerun viewer, or serve it to a browser.")
     replay.add_argument("file", type=Path, help="a recording, e.g. runs/dam_break/run.rrd")
@@ -280,6 +293,13 @@ def main(argv: list[str] | None = None) -> int:
                 from sphcore.backends import cuda
                 cuda.require()
             return run_validate(names, args.quick, args.out, args.backend)
+        if args.command == "study":
+            from launch.study import CASES as STUDY_CASES, run_study
+            names = args.cases or list(STUDY_CASES)
+            unknown = [c for c in names if c not in STUDY_CASES]
+            if unknown:
+                raise UsageError(f"study {' '.join(unknown)}: choose from {', '.join(STUDY_CASES)}")
+            return run_study(names, args.quick, args.out, args.docs, not args.no_terms)
         if args.command == "scene":
             return _cmd_scene(args)
         if args.command == "bench":

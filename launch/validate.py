@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -46,6 +47,38 @@ class Metric:
                 + (f"   ({self.note})" if self.note else ""))
 
 
+@dataclass
+class CaseOptions:
+    """How to run a case: ``sph validate`` uses the defaults; ``sph study`` varies them. ``dx`` None
+    means the case's own (quick or full) spacing; ``overrides`` are --set strings; after the run
+    ``stats`` holds particles, steps, sim_time and wall_s (stepping only, the first step excluded:
+    it compiles or loads numba's cache)."""
+    backend: str = "cpu"
+    precision: str = "f64"
+    dx: float | None = None
+    overrides: tuple = ()
+    plot: bool = True
+    stats: dict = field(default_factory=dict)
+
+
+class _Clock:
+    """Wall time of the stepping loop from the end of the first step."""
+
+    def __init__(self, sim, opts: CaseOptions):
+        self.sim, self.opts, self.t0 = sim, opts, None
+
+    def tick(self):
+        if self.t0 is None and self.sim.step_index >= 1:
+            self.t0 = time.perf_counter()
+            self.steps0, self.time0 = self.sim.step_index, self.sim.t
+
+    def done(self):
+        wall = time.perf_counter() - self.t0 if self.t0 is not None else float("nan")
+        sim = self.sim
+        self.opts.stats.update(particles=sim.n_particles, steps=sim.step_index - self.steps0,
+                               sim_time=sim.t - self.time0, wall_s=wall)
+
+
 def _plot():
     import matplotlib
     matplotlib.use("Agg")
@@ -53,28 +86,36 @@ def _plot():
     return plt
 
 
-def dam_break(quick: bool, out: Path, backend: str = "cpu") -> list[Metric]:
+def dam_break(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions | None = None) -> list[Metric]:
     """2D column a wide and 2a high collapsing in a tank; surge front against Martin & Moyce."""
-    dx = 0.01 if quick else 0.005
-    scene = load_scene(CONFIGS / "dam_break_2d.toml", [f"particles.spacing={dx}"])
+    opts = opts or CaseOptions(backend)
+    dx = opts.dx or (0.01 if quick else 0.005)
+    scene = load_scene(CONFIGS / "dam_break_2d.toml", [f"particles.spacing={dx}", *opts.overrides])
     a = scene.fluid.blocks[0].max[0] - scene.fluid.blocks[0].min[0]
     x_wall = scene.domain.center[0] + 0.5 * scene.domain.size[0]
     g = abs(scene.forces.gravity[1])
     scale = math.sqrt(2.0 * g / a)
     usable = MARTIN_MOYCE_Z < (x_wall - 2 * dx) / a  # points before the front reaches the far wall
     t_exp, z_exp = MARTIN_MOYCE_T[usable], MARTIN_MOYCE_Z[usable]
-    sim = Simulation(scene, "f64", backend)
+    sim = Simulation(scene, opts.precision, opts.backend)
+    clock = _Clock(sim, opts)
     times, fronts = [0.0], [1.0]
     t_end = t_exp[-1] / scale
     while sim.t < t_end:
         sim.step(dt_cap=t_end - sim.t)
+        clock.tick()
         s = sim.state
         n = s.n_owned
         low = s.x[:n, 1] < 0.25 * a  # the front runs along the floor
         times.append(sim.t * scale)
         fronts.append(float(np.max(s.x[:n, 0][low])) / a if low.any() else float("nan"))
+    clock.done()
     z_sim = np.interp(t_exp, times, fronts)
     rms = float(np.sqrt(np.mean(((z_sim - z_exp) / z_exp) ** 2)))
+    metrics = [Metric("dam_break.front_rms_relative", rms, 0.05 if quick else 0.03,
+                      f"{len(t_exp)} points, T <= {t_exp[-1]:.2f}, {sim.n_particles} particles")]
+    if not opts.plot:
+        return metrics
     plt = _plot()
     fig, ax = plt.subplots(figsize=(6, 4))
     ax.plot(times, fronts, label=f"sphfluid WCSPH, dx = a/{a / dx:.0f}")
@@ -88,23 +129,26 @@ def dam_break(quick: bool, out: Path, backend: str = "cpu") -> list[Metric]:
     fig.tight_layout()
     fig.savefig(out / "dam_break.png", dpi=100)
     plt.close(fig)
-    return [Metric("dam_break.front_rms_relative", rms, 0.05 if quick else 0.03,
-                   f"{len(t_exp)} points, T <= {t_exp[-1]:.2f}, {sim.n_particles} particles")]
+    return metrics
 
 
-def taylor_green(quick: bool, out: Path, backend: str = "cpu") -> list[Metric]:
+def taylor_green(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions | None = None) -> list[Metric]:
     """Periodic decaying vortex at Re = 100 against u = -e^{bt} cos 2pi x sin 2pi y, b = -8 pi^2 / Re."""
-    dx = 0.02 if quick else 0.01
-    scene = load_scene(CONFIGS / "taylor_green_2d.toml", [f"particles.spacing={dx}"])
+    opts = opts or CaseOptions(backend)
+    dx = opts.dx or (0.02 if quick else 0.01)
+    scene = load_scene(CONFIGS / "taylor_green_2d.toml", [f"particles.spacing={dx}", *opts.overrides])
     U, nu = scene.fluid.flow_speed, scene.sph.nu
     b = -8.0 * math.pi**2 * nu  # L = 1: Re = U L / nu
     t_end = 1.0
-    sim = Simulation(scene, "f64", backend)
+    sim = Simulation(scene, opts.precision, opts.backend)
+    clock = _Clock(sim, opts)
     times, vmax = [0.0], [float(np.max(np.linalg.norm(sim.state.v[:, :2], axis=1)))]
     while sim.t < t_end:
         sim.step(dt_cap=t_end - sim.t)
+        clock.tick()
         times.append(sim.t)
         vmax.append(float(np.max(np.linalg.norm(sim.synchronised_velocity()[: sim.state.n_owned, :2], axis=1))))
+    clock.done()
     v = sim.refresh()
     s = sim.state
     n = s.n_owned
@@ -115,6 +159,10 @@ def taylor_green(quick: bool, out: Path, backend: str = "cpu") -> list[Metric]:
     speed = np.linalg.norm(v[:n, :2], axis=1)
     l1 = float(np.mean(np.abs(speed - exact)) / np.mean(exact))
     decay_err = float(abs(vmax[-1] / vmax[0] - decay) / decay)
+    metrics = [Metric("taylor_green.speed_l1_relative", l1, 0.05, f"t = {sim.t:.2f} s, {sim.n_particles} particles"),
+               Metric("taylor_green.decay_relative", decay_err, 0.05, "max |v| / max |v|(0) against e^{bt}")]
+    if not opts.plot:
+        return metrics
     plt = _plot()
     fig, ax = plt.subplots(figsize=(6, 4))
     ax.semilogy(times, np.array(vmax) / vmax[0], label=f"sphfluid, dx = {dx}")
@@ -127,8 +175,7 @@ def taylor_green(quick: bool, out: Path, backend: str = "cpu") -> list[Metric]:
     fig.tight_layout()
     fig.savefig(out / "taylor_green.png", dpi=100)
     plt.close(fig)
-    return [Metric("taylor_green.speed_l1_relative", l1, 0.05, f"t = {sim.t:.2f} s, {sim.n_particles} particles"),
-            Metric("taylor_green.decay_relative", decay_err, 0.05, "max |v| / max |v|(0) against e^{bt}")]
+    return metrics
 
 
 def hydrostatic(quick: bool, out: Path, backend: str = "cpu") -> list[Metric]:
@@ -210,18 +257,20 @@ def _maxima(t, y):
     return found
 
 
-def oscillating_drop(quick: bool, out: Path, backend: str = "cpu") -> list[Metric]:
+def oscillating_drop(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions | None = None) -> list[Metric]:
     """Drop in a central force field (Monaghan & Rafiee 2013): oscillation period and amplitude of the
     semi-axis against the exact ellipse solution (period 4.567375 s for omega = 1, A = 0.5)."""
-    dx = 0.05 if quick else 0.025
-    scene = load_scene(CONFIGS / "oscillating_drop_2d.toml", [f"particles.spacing={dx}"])
+    opts = opts or CaseOptions(backend)
+    dx = opts.dx or (0.05 if quick else 0.025)
+    scene = load_scene(CONFIGS / "oscillating_drop_2d.toml", [f"particles.spacing={dx}", *opts.overrides])
     omega, rate = scene.forces.central_omega, scene.fluid.flow_rate
     radius = scene.fluid.blocks[0].radius
     c = np.array(scene.fluid.flow_center[:2])
     t_end = 10.0  # two periods
     t_ref, a_ref, b_ref = drop_semi_axes(omega, rate, radius, t_end)
     ref_peaks = _maxima(t_ref, a_ref)
-    sim = Simulation(scene, "f64", backend)
+    sim = Simulation(scene, opts.precision, opts.backend)
+    clock = _Clock(sim, opts)
 
     def moments():
         x = sim.state.x[: sim.state.n_owned, :2] - c
@@ -232,11 +281,13 @@ def oscillating_drop(quick: bool, out: Path, backend: str = "cpu") -> list[Metri
     times, a_sim, b_sim = [0.0], [radius], [radius]
     while sim.t < t_end:
         sim.step(dt_cap=t_end - sim.t)
+        clock.tick()
         if sim.step_index % 10 == 0 or sim.t >= t_end:
             mx, my = moments()
             times.append(sim.t)
             a_sim.append(radius * math.sqrt(mx / mx0))
             b_sim.append(radius * math.sqrt(my / my0))
+    clock.done()
     peaks = _maxima(np.array(times), np.array(a_sim))
     period_ref = ref_peaks[1][0] - ref_peaks[0][0]
     amp_ref = ref_peaks[0][1] - radius
@@ -245,6 +296,14 @@ def oscillating_drop(quick: bool, out: Path, backend: str = "cpu") -> list[Metri
         amp_err = abs((peaks[0][1] - radius) - amp_ref) / amp_ref
     else:
         period_err = amp_err = float("nan")
+    note = f"exact {period_ref:.4f} s, {sim.n_particles} particles"
+    if len(peaks) >= 2:
+        note = f"{peaks[1][0] - peaks[0][0]:.4f} s vs " + note
+    metrics = [Metric("oscillating_drop.period_relative", period_err, 0.02, note),
+               Metric("oscillating_drop.amplitude_relative", amp_err, 0.05,
+                      f"first maximum of a - R vs exact {amp_ref:.4f} m")]
+    if not opts.plot:
+        return metrics
     plt = _plot()
     fig, ax = plt.subplots(figsize=(6, 4))
     ax.plot(times, a_sim, label="a (x semi-axis), sphfluid")
@@ -258,12 +317,7 @@ def oscillating_drop(quick: bool, out: Path, backend: str = "cpu") -> list[Metri
     fig.tight_layout()
     fig.savefig(out / "oscillating_drop.png", dpi=100)
     plt.close(fig)
-    note = f"exact {period_ref:.4f} s, {sim.n_particles} particles"
-    if len(peaks) >= 2:
-        note = f"{peaks[1][0] - peaks[0][0]:.4f} s vs " + note
-    return [Metric("oscillating_drop.period_relative", period_err, 0.02, note),
-            Metric("oscillating_drop.amplitude_relative", amp_err, 0.05,
-                   f"first maximum of a - R vs exact {amp_ref:.4f} m")]
+    return metrics
 
 
 CASES = {"hydrostatic": hydrostatic, "dam_break": dam_break, "taylor_green": taylor_green,
