@@ -178,18 +178,22 @@ def taylor_green(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions
     return metrics
 
 
-def hydrostatic(quick: bool, out: Path, backend: str = "cpu") -> list[Metric]:
+def hydrostatic(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions | None = None) -> list[Metric]:
     """Still water settling in a 2D tank: pressure against rho0 g (H - y) once at rest."""
-    dx = 0.02 if quick else 0.01
-    scene = load_scene(CONFIGS / "hydrostatic_2d.toml", [f"particles.spacing={dx}"])
+    opts = opts or CaseOptions(backend)
+    dx = opts.dx or (0.02 if quick else 0.01)
+    scene = load_scene(CONFIGS / "hydrostatic_2d.toml", [f"particles.spacing={dx}", *opts.overrides])
     rho0, g = scene.fluid.rest_density, abs(scene.forces.gravity[1])
-    sim = Simulation(scene, "f64", backend)
+    sim = Simulation(scene, opts.precision, opts.backend)
+    clock = _Clock(sim, opts)
     t_end = 1.5
     times, ke = [], []
     while sim.t < t_end:
         sim.step(dt_cap=t_end - sim.t)
+        clock.tick()
         times.append(sim.t)
         ke.append(sim.kinetic_energy())
+    clock.done()
     sim.refresh()
     s = sim.state
     n = s.n_owned
@@ -203,6 +207,11 @@ def hydrostatic(quick: bool, out: Path, backend: str = "cpu") -> list[Metric]:
     which = np.digitize(y, bins) - 1
     profile = max(abs(float(np.mean(p[which == k]) - np.mean(ref[which == k]))) for k in range(10)
                   if np.any(which == k)) / (rho0 * g * H)
+    metrics = [Metric("hydrostatic.pressure_error_of_rho_g_H", err, 0.01, f"max over {int(interior.sum())} particles"),
+               Metric("hydrostatic.profile_error_of_rho_g_H", profile, 0.01, "mean pressure of 10 depth layers"),
+               Metric("hydrostatic.density_deviation", dev, 0.01, "max |rho/rho0 - 1| below the surface layer")]
+    if not opts.plot:
+        return metrics
     plt = _plot()
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(10, 4))
     ax.plot(p / (rho0 * g * H), y / H, ".", ms=2, label="particles")
@@ -217,9 +226,7 @@ def hydrostatic(quick: bool, out: Path, backend: str = "cpu") -> list[Metric]:
     fig.tight_layout()
     fig.savefig(out / "hydrostatic.png", dpi=100)
     plt.close(fig)
-    return [Metric("hydrostatic.pressure_error_of_rho_g_H", err, 0.01, f"max over {int(interior.sum())} particles"),
-            Metric("hydrostatic.profile_error_of_rho_g_H", profile, 0.01, "mean pressure of 10 depth layers"),
-            Metric("hydrostatic.density_deviation", dev, 0.01, "max |rho/rho0 - 1| below the surface layer")]
+    return metrics
 
 
 def drop_semi_axes(omega: float, rate: float, radius: float, t_end: float, dt: float = 1.0e-4):

@@ -35,6 +35,7 @@ class Params(NamedTuple):
     period_y: float
     period_z: float
     xsph_eps: float
+    shift_a: float      # particle shifting coefficient A (physics/shifting.py)
     sigma: float        # surface tension coefficient (N/m)
     st_threshold: float # colour-gradient threshold (1/m)
     vorticity_eps: float

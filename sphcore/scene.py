@@ -91,6 +91,8 @@ class SPH:
 @dataclass(frozen=True)
 class Terms:
     xsph: float = spec(0.0, "XSPH velocity smoothing eps (0 = off; typical 0.1-0.5)", range=(0.0, 1.0))
+    shifting: float = spec(0.0, "Fickian particle shifting coefficient A, D = A h |v| dt (0 = off; typical 1-2)",
+                           range=(0.0, 10.0))
     surface_tension: float = spec(0.0, "colour-field surface tension sigma in N/m (0 = off)", range=(0.0, 1.0e3))
     surface_threshold: float = spec(0.1, "colour-gradient threshold as a fraction of 1/spacing", range=(0.0, 10.0))
     vorticity_confinement: float = spec(0.0, "vorticity confinement eps in m/s (0 = off)", range=(0.0, 1.0e3))

@@ -97,13 +97,16 @@ class Simulation:
             rho0=rho0, c0=sph.sound_speed, clamp_negative=bool(sph.clamp_negative_pressure), alpha=sph.alpha,
             mu=rho0 * nu, gravity=scene.forces.gravity, external=scene.forces.external,
             central_omega2=scene.forces.central_omega ** 2, central=scene.forces.central_center,
-            period=tuple(self.grid.period), xsph_eps=scene.terms.xsph, sigma=scene.terms.surface_tension,
+            period=tuple(self.grid.period), xsph_eps=scene.terms.xsph, shift_a=scene.terms.shifting,
+            sigma=scene.terms.surface_tension,
             st_threshold=scene.terms.surface_threshold / dx, vorticity_eps=scene.terms.vorticity_confinement,
             restitution=scene.boundary.restitution, friction=scene.boundary.friction,
             wall_gap=scene.boundary.gap * dx, dx=dx, inv_s=1.0 / S, dim3=scene.dim == 3,
             wall_table_end=table_end(self.H, dx),
         )
         self.use_xsph = scene.terms.xsph > 0.0
+        self.use_shifting = scene.terms.shifting > 0.0
+        self.use_drift = self.use_xsph or self.use_shifting  # the drift uses v + dv
         self.use_surface_tension = scene.terms.surface_tension > 0.0
         self.use_vorticity = scene.terms.vorticity_confinement > 0.0
         self._resize_scratch(self.n_particles)
@@ -173,7 +176,7 @@ class Simulation:
         if getattr(self, "_scratch_n", None) == n:
             return
         dtype = self.dtype
-        self._xsph_dv = np.zeros((n if self.use_xsph else 0, 3), dtype=dtype)
+        self._xsph_dv = np.zeros((n if self.use_drift else 0, 3), dtype=dtype)  # drift correction dv
         self._omega = np.zeros((n if self.use_vorticity else 0, 3), dtype=dtype)
         self._leaked = np.zeros(n, dtype=np.int8)
         self._fill = np.ones(n, dtype=dtype)  # wall fill fraction theta (physics/walls.py)
@@ -232,6 +235,9 @@ class Simulation:
         if self.use_xsph:
             with t("xsph"):
                 e.xsph(prm)                                        # x, v, rho        -> xsph_dv
+        if self.use_shifting:
+            with t("shifting"):
+                e.shifting(prm)                                    # x, v, m, rho     -> xsph_dv (+=)
         with t("timestep"):
             stats = e.statistics()                                 # local max |v|, |a|, compression
         stats = yield from halo.reduce_max(self, stats)            # global max |v|, |a|, compression

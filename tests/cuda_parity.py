@@ -125,7 +125,7 @@ CASES = {
     "tiny_f64": lambda: stages_case(scene("tiny.toml"), "f64"),
     "tiny_f32": lambda: steps_case(scene("tiny.toml"), "f32", 3),
     "terms_f64": lambda: steps_case(scene("tiny.toml", "terms.xsph=0.3", "terms.surface_tension=0.05",
-                                          "terms.vorticity_confinement=0.01", "time.integrator='leapfrog'",
+                                          "terms.vorticity_confinement=0.01", "terms.shifting=1.0", "time.integrator='leapfrog'",
                                           "sph.viscosity='morris'", "sph.nu=1e-4", "sph.kernel='cubic_spline'"),
                                     "f64", 2),
     "periodic_f64": lambda: steps_case(scene("taylor_green_2d.toml", "particles.spacing=0.05"), "f64", 2),

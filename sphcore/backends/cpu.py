@@ -11,7 +11,7 @@ from numba import literally, njit, prange
 
 from sphcore.backends.literal import literal_dispatch
 from sphcore.backends.rows import (acceleration_row, boundaries_row, confinement_row, density_row, integrate_row,
-                                   statistics_row, surface_tension_row, vorticity_row, xsph_row)
+                                   shifting_row, statistics_row, surface_tension_row, vorticity_row, xsph_row)
 
 # Floating-point licences for the neighbour passes: reassociation (the sums over neighbours become
 # partial sums LLVM can schedule; 25-30 % faster forces), contraction into FMA, reciprocals and
@@ -87,14 +87,25 @@ def compute_xsph(kernel, periodic, prm, n, x, v, m, rho, nbr, counts, dv):
         xsph_row(kernel, periodic, prm, i, x, v, m, rho, nbr, counts, dv)
 
 
+@literal_dispatch(3)
+@njit(cache=True, parallel=True, fastmath=FASTMATH)
+def compute_shifting(kernel, periodic, add, prm, n, x, v, m, rho, nbr, counts, wall_kind, wall_data, dv):
+    """Particle-shifting drift of rows 0..n-1, written to dv or added to it (rows.shifting_row)."""
+    literally(kernel)
+    literally(periodic)
+    literally(add)
+    for i in prange(n):
+        shifting_row(kernel, periodic, prm, i, x, v, m, rho, nbr, counts, wall_kind, wall_data, add, dv)
+
+
 @literal_dispatch(2)
 @njit(cache=True, parallel=True)
-def integrate(integrator, use_xsph, n, x, v, a, dv, dt, dt_prev):
+def integrate(integrator, use_drift, n, x, v, a, dv, dt, dt_prev):
     """v, x of rows 0..n-1 advanced by dt (rows.integrate_row)."""
     literally(integrator)
-    literally(use_xsph)
+    literally(use_drift)
     for i in prange(n):
-        integrate_row(integrator, use_xsph, i, x, v, a, dv, dt, dt_prev)
+        integrate_row(integrator, use_drift, i, x, v, a, dv, dt, dt_prev)
 
 
 @literal_dispatch(1)
@@ -184,6 +195,12 @@ class CpuStages:
         compute_xsph(int(sim.kernel), sim.periodic, prm, s.n_owned, s.x, s.v, s.m, s.rho, g.nbr, g.counts,
                      sim._xsph_dv)
 
+    def shifting(self, prm):
+        sim = self.sim
+        s, g, w_ = sim.state, sim.grid, sim.walls
+        compute_shifting(int(sim.kernel), sim.periodic, int(sim.use_xsph), prm, s.n_owned, s.x, s.v, s.m, s.rho,
+                         g.nbr, g.counts, w_.kind, w_.data, sim._xsph_dv)
+
     def statistics(self):
         sim = self.sim
         s = sim.state
@@ -192,7 +209,7 @@ class CpuStages:
     def integrate(self, prm, dt, dt_prev):
         sim = self.sim
         s = sim.state
-        integrate(int(sim.integrator), int(sim.use_xsph), s.n_owned, s.x, s.v, s.a, sim._xsph_dv, dt, dt_prev)
+        integrate(int(sim.integrator), int(sim.use_drift), s.n_owned, s.x, s.v, s.a, sim._xsph_dv, dt, dt_prev)
         enforce_boundaries(sim.periodic, prm, s.n_owned, s.x, s.v, sim._lo, sim.walls.kind, sim.walls.data,
                            sim._leaked)
         return int(sim._leaked[: s.n_owned].sum())

@@ -172,14 +172,26 @@ def xsph_kernel(kernel, periodic):
 
 
 @functools.cache
-def integrate_kernel(integrator, use_xsph):
+def shifting_kernel(kernel, periodic, add):
+    row = _device(rows.shifting_row)
+
+    @cuda.jit
+    def shifting(prm, n, x, v, m, rho, nbr, counts, wall_kind, wall_data, dv):
+        i = cuda.grid(1)
+        if i < n:
+            row(kernel, periodic, prm, i, x, v, m, rho, nbr, counts, wall_kind, wall_data, add, dv)
+    return shifting
+
+
+@functools.cache
+def integrate_kernel(integrator, use_drift):
     row = _device(rows.integrate_row)
 
     @cuda.jit
     def integrate(n, x, v, a, dv, dt, dt_prev):
         i = cuda.grid(1)
         if i < n:
-            row(integrator, use_xsph, i, x, v, a, dv, dt, dt_prev)
+            row(integrator, use_drift, i, x, v, a, dv, dt, dt_prev)
     return integrate
 
 
@@ -597,7 +609,7 @@ class CudaStages:
             return
         dt = self.dtype
         sim = self.sim
-        self.d_xsph_dv = cuda.device_array((n if sim.use_xsph else 1, 3), dtype=dt)
+        self.d_xsph_dv = cuda.device_array((n if sim.use_drift else 1, 3), dtype=dt)
         self.d_omega = cuda.device_array((n if sim.use_vorticity else 1, 3), dtype=dt)
         self.d_leaked = cuda.device_array(max(n, 1), dtype=np.int8)
         self.d_fill = cuda.device_array(max(n, 1), dtype=dt)
@@ -666,6 +678,15 @@ class CudaStages:
                 prm, d.n_owned, d.x, d.v, d.m, d.rho, g.d_nbr, g.d_counts, self.d_xsph_dv)
         cuda.synchronize()
 
+    def shifting(self, prm):
+        self._begin()
+        sim, d, g = self.sim, self.d, self.grid
+        if d.n_owned:
+            shifting_kernel(int(sim.kernel), sim.periodic, int(sim.use_xsph))[blocks(d.n_owned), BLOCK](
+                prm, d.n_owned, d.x, d.v, d.m, d.rho, g.d_nbr, g.d_counts, self.wall_kind, self.wall_data,
+                self.d_xsph_dv)
+        cuda.synchronize()
+
     def statistics(self):
         """(max |v|^2, max |a|^2, max compression, NaN/Inf rows) of the owned rows."""
         self._begin()
@@ -684,7 +705,7 @@ class CudaStages:
         n = d.n_owned
         self.leak_count.copy_to_device(np.zeros(1, dtype=np.int64))
         if n:
-            integrate_kernel(int(sim.integrator), int(sim.use_xsph))[blocks(n), BLOCK](
+            integrate_kernel(int(sim.integrator), int(sim.use_drift))[blocks(n), BLOCK](
                 n, d.x, d.v, d.a, self.d_xsph_dv, dt, dt_prev)
             boundaries_kernel(sim.periodic)[blocks(n), BLOCK](
                 prm, n, d.x, d.v, self.lo, self.wall_kind, self.wall_data, self.d_leaked, self.leak_count)
@@ -703,7 +724,7 @@ def compile_all(kernel=0, eos=0, viscosity=1, periodic=0, integrator=0, dtype="f
     prm = make_params(nptype, H=1.0, h=0.5, s_w=1.0, s_g=1.0, s_l=1.0, w0=1.0, rho0=1000.0, c0=10.0,
                       clamp_negative=True, alpha=0.1, mu=0.0, gravity=(0.0, -9.81, 0.0), external=(0.0, 0.0, 0.0),
                       central_omega2=1.0, central=(0.0, 0.0, 0.0),
-                      period=(0.0, 0.0, 0.0), xsph_eps=0.0, sigma=0.0, st_threshold=0.0, vorticity_eps=0.0,
+                      period=(0.0, 0.0, 0.0), xsph_eps=0.0, shift_a=1.0, sigma=0.0, st_threshold=0.0, vorticity_eps=0.0,
                       restitution=0.0, friction=0.0, wall_gap=0.0, dx=0.5, inv_s=1.0, dim3=True, wall_table_end=1.0)
     P = numba.typeof(prm)
     v1, v2 = types.Array(f, 1, "C"), types.Array(f, 2, "C")
@@ -720,6 +741,7 @@ def compile_all(kernel=0, eos=0, viscosity=1, periodic=0, integrator=0, dtype="f
         "vorticity": (vorticity_kernel(kernel, periodic), (P, n, v2, v2, v1, v1, nbr, i1, v2)),
         "confinement": (confinement_kernel(kernel, periodic), (P, n, v2, v1, v1, v2, nbr, i1, v2)),
         "xsph": (xsph_kernel(kernel, periodic), (P, n, v2, v2, v1, v1, nbr, i1, v2)),
+        "shifting": (shifting_kernel(kernel, periodic, 1), (P, n, v2, v2, v1, v1, nbr, i1, wk, wd, v2)),
         "integrate": (integrate_kernel(integrator, 1), (n, v2, v2, v2, v2, f, f)),
         "boundaries": (boundaries_kernel(periodic), (P, n, v2, v2, v1, wk, wd, i8, i8v)),
         "statistics": (statistics_kernel(), (n, v2, v2, v2, v1, f, types.Array(types.float64, 1, "C"))),

@@ -25,6 +25,7 @@ from sphcore.physics.surface_tension import colour_gradient_pair, colour_laplaci
 from sphcore.physics.viscosity import artificial_pair, morris_pair, muller_pair
 from sphcore.physics.vorticity import confinement, curl_pair
 from sphcore.physics.walls import fill_fraction, signed_distance, wall_terms
+from sphcore.physics.shifting import SURFACE_CONCENTRATION, concentration_gradient_pair
 from sphcore.physics.xsph import xsph_pair
 
 
@@ -212,7 +213,50 @@ def xsph_row(kernel, periodic, prm, i, x, v, m, rho, nbr, counts, dv):
 
 
 @njit(cache=True, inline="always")
-def integrate_row(integrator, use_xsph, i, x, v, a, dv, dt, dt_prev):
+def shifting_row(kernel, periodic, prm, i, x, v, m, rho, nbr, counts, wall_kind, wall_data, add, dv):
+    """Particle shifting as a drift velocity, -A h |v_i| grad C_i, free-surface and wall-normal
+    components removed (shifting.py); added to dv if ``add`` (XSPH wrote it), else written."""
+    gx = 0.0 * prm.H
+    gy = 0.0 * prm.H
+    gz = 0.0 * prm.H
+    c = m[i] / prm.rho0 * prm.w0
+    for k in range(counts[i]):
+        j = nbr[i, k]
+        dx, dy, dz = separation(periodic, x, i, j, prm)
+        r2 = dx * dx + dy * dy + dz * dz
+        r_ij = math.sqrt(r2)
+        c += m[j] / prm.rho0 * w(kernel, r_ij, prm.H, prm.s_w)
+        if r2 == 0.0:
+            continue
+        f = concentration_gradient_pair(m[j], prm.rho0, dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g))
+        gx += f * dx
+        gy += f * dy
+        gz += f * dz
+    if c < SURFACE_CONCENTRATION:  # free-surface layer: grad C is the surface's, not disorder's
+        gx = 0.0 * gx
+        gy = 0.0 * gy
+        gz = 0.0 * gz
+    for q in range(wall_kind.shape[0]):  # near a wall: no shift along its normal
+        d, nx, ny, nz = signed_distance(wall_kind[q], wall_data[q], x[i, 0], x[i, 1], x[i, 2])
+        if d < prm.H:
+            gn = gx * nx + gy * ny + gz * nz
+            gx -= gn * nx
+            gy -= gn * ny
+            gz -= gn * nz
+    speed = math.sqrt(v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1] + v[i, 2] * v[i, 2])
+    s = -prm.shift_a * prm.h * speed
+    if add:
+        dv[i, 0] += s * gx
+        dv[i, 1] += s * gy
+        dv[i, 2] += s * gz
+    else:
+        dv[i, 0] = s * gx
+        dv[i, 1] = s * gy
+        dv[i, 2] = s * gz
+
+
+@njit(cache=True, inline="always")
+def integrate_row(integrator, use_drift, i, x, v, a, dv, dt, dt_prev):
     """Symplectic Euler: v += dt a; x += dt v.  Leapfrog KDK with staggered velocities:
     v_{n+1/2} = v_{n-1/2} + (dt_prev + dt)/2 a_n; x += dt v_{n+1/2}. XSPH adds dv to the drift."""
     if integrator == 0:
@@ -221,7 +265,7 @@ def integrate_row(integrator, use_xsph, i, x, v, a, dv, dt, dt_prev):
         kick = 0.5 * (dt_prev + dt)
     for c in range(3):
         v[i, c] += kick * a[i, c]
-        if use_xsph:
+        if use_drift:
             x[i, c] += dt * (v[i, c] + dv[i, c])
         else:
             x[i, c] += dt * v[i, c]
