@@ -30,7 +30,7 @@ def test_a_case_prints_its_metrics_writes_its_plot_and_sets_the_exit_code(tmp_pa
 
 def test_unknown_cases_are_refused(capsys):
     assert main(["validate", "sloshing"]) == 2
-    assert "choose from hydrostatic, dam_break, taylor_green" in capsys.readouterr().err
+    assert "choose from hydrostatic, dam_break, dam_break_3d, taylor_green, oscillating_drop" in capsys.readouterr().err
 
 
 def test_drop_reference_reproduces_the_published_period():
