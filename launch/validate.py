@@ -2,7 +2,7 @@
 case, exit code 1 if any metric fails.
 
     sph validate CASE [--quick] [--out DIR]      CASE: hydrostatic, dam_break, dam_break_3d, taylor_green,
-                                                       oscillating_drop
+                                                       oscillating_drop, poiseuille
     sph validate --all [--quick]
 
 Each case is a function of (quick, out folder) returning its metrics; ``--quick`` uses a coarser
@@ -338,13 +338,70 @@ def oscillating_drop(quick: bool, out: Path, backend: str = "cpu", opts: CaseOpt
     return metrics
 
 
+def poiseuille_velocity(y, t, F: float, nu: float, L: float, terms: int = 200):
+    """Start-up channel flow between plates at y = 0 and y = L at rest, body force F from t = 0
+    (Morris, Fox & Zhu 1997, eq. 21):
+        u = F/(2 nu) y (L - y) - sum_n 4 F L^2 / (nu pi^3 (2n+1)^3) sin(pi y (2n+1) / L) e^{-(2n+1)^2 pi^2 nu t / L^2}"""
+    y = np.asarray(y, dtype=float)
+    u = F / (2.0 * nu) * y * (L - y)
+    for n in range(terms):
+        k = 2 * n + 1
+        u = u - 4.0 * F * L**2 / (nu * math.pi**3 * k**3) * np.sin(math.pi * y * k / L) \
+            * math.exp(-k * k * math.pi**2 * nu * t / L**2)
+    return u
+
+
+def poiseuille(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions | None = None) -> list[Metric]:
+    """Start-up Poiseuille flow against the series solution (Morris et al. 1997): the largest
+    velocity error over the channel at five times up to the steady state, in units of u_max."""
+    opts = opts or CaseOptions(backend)
+    dx = opts.dx or (5.0e-5 if quick else 2.5e-5)
+    scene = load_scene(CONFIGS / "poiseuille_2d.toml", [f"particles.spacing={dx}", *opts.overrides])
+    F, nu = scene.forces.external[0], scene.sph.nu
+    L = scene.domain.size[1]
+    y0 = scene.domain.center[1] - 0.5 * L
+    u_max = F * L**2 / (8.0 * nu)
+    sim = Simulation(scene, opts.precision, opts.backend)
+    clock = _Clock(sim, opts)
+    times = (0.0225, 0.045, 0.1125, 0.225, 1.0)  # Morris et al.'s figure 2
+    profiles, worst = [], 0.0
+    for t_out in times:
+        while sim.t < t_out:
+            sim.step(dt_cap=t_out - sim.t)
+            clock.tick()
+        n = sim.state.n_owned
+        y = sim.state.x[:n, 1] - y0
+        u = sim.synchronised_velocity()[:n, 0]
+        worst = max(worst, float(np.max(np.abs(u - poiseuille_velocity(y, sim.t, F, nu, L)))) / u_max)
+        profiles.append((sim.t, y.copy(), u.copy()))
+    clock.done()
+    metrics = [Metric("poiseuille.velocity_error_of_u_max", worst, 0.02,
+                      f"max over {sim.n_particles} particles at t = {', '.join(f'{t:g}' for t in times)} s")]
+    if not opts.plot:
+        return metrics
+    plt = _plot()
+    fig, ax = plt.subplots(figsize=(6, 4))
+    yy = np.linspace(0.0, L, 200)
+    for k, (t, y, u) in enumerate(profiles):
+        ax.plot(y / L, u / u_max, ".", ms=3, color=f"C{k}", label=f"t = {t:g} s")
+        ax.plot(yy / L, poiseuille_velocity(yy, t, F, nu, L) / u_max, "-", lw=1, color=f"C{k}")
+    ax.set_xlabel("y / L")
+    ax.set_ylabel("u / u_max")
+    ax.legend(fontsize=8)
+    ax.set_title(f"Start-up Poiseuille flow (dots: sphfluid, lines: series), {round(L / dx)} across")
+    fig.tight_layout()
+    fig.savefig(out / "poiseuille.png", dpi=100)
+    plt.close(fig)
+    return metrics
+
+
 def dam_break_3d(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions | None = None) -> list[Metric]:
     """The dam break in 3D (the 2D column extruded between two walls) against Martin & Moyce."""
     return dam_break(quick, out, backend, opts, dim=3)
 
 
 CASES = {"hydrostatic": hydrostatic, "dam_break": dam_break, "dam_break_3d": dam_break_3d,
-         "taylor_green": taylor_green, "oscillating_drop": oscillating_drop}
+         "taylor_green": taylor_green, "oscillating_drop": oscillating_drop, "poiseuille": poiseuille}
 
 
 def run_validate(names: list[str], quick: bool, out: Path, backend: str = "cpu") -> int:

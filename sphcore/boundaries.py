@@ -34,7 +34,7 @@ def rotation_matrix(degrees) -> np.ndarray:
 class Walls:
     kind: np.ndarray        # (nw,) int32
     data: np.ndarray        # (nw, 16) float
-    tables: np.ndarray      # (4, nt): Phi(d), G0(d), G1(d), G2(d) on d in [0, H] (wall_tables)
+    tables: np.ndarray      # (5, nt): Phi(d), G0(d), G1(d), G2(d), Gv(d) on d in [0, H] (wall_tables)
     lo: np.ndarray          # (3,) lower corner of the domain's bounding box
     hi: np.ndarray          # (3,) upper corner
     container_walls: int    # the first walls belong to the container
@@ -142,6 +142,9 @@ def _pad_rows(rows, dtype) -> np.ndarray:
     return out
 
 
+BETA_MAX = 3.0  # caps the no-slip extrapolation z / d (Morris et al. 1997 use 1.5: a 45 % slip at the first row here)
+
+
 def wall_tables(kernel: Kernel, dim: int, H: float, dx: float, per_half_spacing: int = 64) -> np.ndarray:
     """Wall tables on d in [0, table_end(H, dx)]: rows Phi(d), G0(d), G1(d), G2(d) (see
     sphcore.physics.walls). Samples are dx / (2 per_half_spacing) apart, so d = dx/2 — a lattice
@@ -157,6 +160,8 @@ def wall_tables(kernel: Kernel, dim: int, H: float, dx: float, per_half_spacing:
         G0(d)  = sum_virtual W'(r) z / r / S          (mirrored pressure, p_j = p_i)
         G1(d)  = sum_virtual W'(r) z^2 / r / S        (hydrostatic extrapolation along the normal)
         G2(d)  = sum_virtual W'(r) t^2 / r / S        (... along one tangential axis t)
+        Gv(d)  = sum_virtual W'(r) r / (r^2 + eta^2) beta / S,  eta^2 = 0.01 h^2, h = H/2,
+                 beta = min(BETA_MAX, z / d)             (no-slip viscous wall, Morris et al. 1997)
     """
     s_w, s_g, _ = kernel_constants(kernel, dim, H)
     s_g /= lattice_gradient_moment(kernel, dim, H, dx)  # the calibrated gradient (see that function)
@@ -174,7 +179,8 @@ def wall_tables(kernel: Kernel, dim: int, H: float, dx: float, per_half_spacing:
     S = float(sum(wv(r).sum() for r in full))
     end = table_end(H, dx)
     size = int(round(end / (0.5 * dx))) * per_half_spacing + 1
-    out = np.zeros((4, size))
+    out = np.zeros((5, size))
+    eta2 = 0.01 * (0.5 * H) ** 2
     for i, d in enumerate(np.linspace(0.0, end, size)):
         for k in range(K + 1):
             z = d + (k + 0.5) * dx
@@ -186,6 +192,9 @@ def wall_tables(kernel: Kernel, dim: int, H: float, dx: float, per_half_spacing:
             out[1, i] += dwz.sum()
             out[2, i] += (dwz * z).sum()
             out[3, i] += (gv(r) / r * t2).sum()
+            # Morris: the virtual particle moves with -(z - d)/d v_i, so v_i - v_j = (z / d) v_i
+            beta = min(BETA_MAX, z / d) if d > 0.0 else BETA_MAX
+            out[4, i] += (gv(r) * r / (r * r + eta2)).sum() * beta
     return out / S
 
 

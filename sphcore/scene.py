@@ -515,6 +515,14 @@ def _check_combinations(s: Scene) -> Scene:
         if any(dom.rotation) or dom.scale != 1.0:
             raise SceneError(f"domain.periodic = {list(dom.periodic)!r}: a periodic container cannot be rotated or "
                              "scaled (domain.rotation = [0, 0, 0], domain.scale = 1)")
+        H = s.sph.support * s.particles.spacing
+        for d in range(s.dim):
+            if dom.periodic[d]:
+                length = dom.size[d] if dom.container == "box" else dom.bounds_max[d] - dom.bounds_min[d]
+                if length < 3.0 * H:
+                    raise SceneError(f"domain.periodic: axis {'xyz'[d]} is {length:g} m long, shorter than 3 support "
+                                     f"radii (3 x sph.support x particles.spacing = {3.0 * H:g} m); lengthen it or "
+                                     "refine particles.spacing")
     if dom.container == "none":
         lo, hi = dom.bounds_min, dom.bounds_max
         if any(hi[d] <= lo[d] for d in range(s.dim)):

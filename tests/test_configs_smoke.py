@@ -16,7 +16,9 @@ PROMISED = {
     "mesh_obstacle": (11_000, 17_000),   # "~14,000 particles"
     "hydrostatic_2d": (1_900, 3_100),    # "~2,500"
     "obstacle": (8_000, 13_000),         # "~10,400 particles"
-    "taylor_green_2d": (1_900, 3_100),   # "~2,500 particles"
+    "taylor_green_2d": (7_500, 12_500),  # "10,000 particles"
+    "oscillating_drop_2d": (3_800, 6_300),  # "~5,000 particles"
+    "poiseuille_2d": (720, 1_200),       # "960 particles"
     "tiny": (100, 1_000),                # "Under 1,000 particles"
 }
 

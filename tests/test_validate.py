@@ -5,7 +5,7 @@ import pytest
 
 from launch.cli import main
 from launch.validate import (CONFIGS, MARTIN_MOYCE_T, MARTIN_MOYCE_Z, Metric, _maxima, drop_semi_axes,
-                             run_validate)
+                             poiseuille_velocity, run_validate)
 
 
 def test_metric_verdicts():
@@ -30,7 +30,7 @@ def test_a_case_prints_its_metrics_writes_its_plot_and_sets_the_exit_code(tmp_pa
 
 def test_unknown_cases_are_refused(capsys):
     assert main(["validate", "sloshing"]) == 2
-    assert "choose from hydrostatic, dam_break, dam_break_3d, taylor_green, oscillating_drop" in capsys.readouterr().err
+    assert "choose from hydrostatic, dam_break, dam_break_3d, taylor_green, oscillating_drop, poiseuille" in capsys.readouterr().err
 
 
 def test_drop_reference_reproduces_the_published_period():
@@ -65,3 +65,45 @@ def test_central_force_pulls_towards_its_centre():
     sim.state = ParticleState.create(s.id[:1], np.array([[0.3, -0.4, 0.0]]), np.zeros((1, 3)), s.m[:1], np.float64)
     sim.step()
     assert np.allclose(sim.state.v[0], [-4.0 * 0.3 * 1e-3, 4.0 * 0.4 * 1e-3, 0.0], rtol=1e-12, atol=0)
+
+
+def test_poiseuille_series_starts_at_rest_and_ends_parabolic():
+    y = np.linspace(0.0, 1e-3, 11)
+    assert np.max(np.abs(poiseuille_velocity(y, 0.0, 2e-4, 1e-6, 1e-3))) < 1e-3 * 2.5e-5
+    steady = 2e-4 / (2 * 1e-6) * y * (1e-3 - y)
+    assert np.allclose(poiseuille_velocity(y, 50.0, 2e-4, 1e-6, 1e-3), steady, rtol=0, atol=1e-12)
+
+
+def test_no_slip_walls_drag_a_uniform_flow_only_near_the_walls():
+    """A uniform flow along the channel, no body force: the Morris viscosity exerts nothing in the
+    bulk (no velocity differences) and drags every particle within a support of a plate."""
+    from sphcore.scene import load_scene
+    from sphcore.solver import Simulation
+    from sphcore.state import ParticleState
+    scene = load_scene(CONFIGS / "poiseuille_2d.toml", ["particles.spacing=5e-5", "forces.external=[0, 0]"])
+    sim = Simulation(scene, "f64")
+    s = sim.state
+    v = np.zeros_like(s.v)
+    v[:, 0] = 1e-5
+    sim.state = ParticleState.create(s.id, s.x, v, s.m, np.float64)
+    sim.refresh()
+    s = sim.state
+    n = s.n_owned
+    d = np.minimum(s.x[:n, 1], 1e-3 - s.x[:n, 1])
+    near = d + 0.5 * 5e-5 < sim.H  # the first virtual row behind the plate is within the support
+    assert np.all(s.a[:n][near, 0] < 0.0)
+    assert np.max(np.abs(s.a[:n][~near, 0])) < 1e-6 * np.max(np.abs(s.a[:n][near, 0]))
+    inviscid = Simulation(load_scene(CONFIGS / "poiseuille_2d.toml", ["particles.spacing=5e-5",
+                                                                     "forces.external=[0, 0]",
+                                                                     "sph.viscosity='none'"]), "f64")
+    s2 = inviscid.state
+    inviscid.state = ParticleState.create(s2.id, s2.x, v, s2.m, np.float64)
+    inviscid.refresh()
+    assert np.max(np.abs(inviscid.state.a[:, 0])) < 1e-12  # free-slip without viscosity
+
+
+@pytest.mark.slow
+def test_poiseuille_quick_meets_its_tolerance(tmp_path, capsys):
+    rc = run_validate(["poiseuille"], quick=True, out=tmp_path)
+    line = [x.split() for x in capsys.readouterr().out.splitlines() if x.startswith("poiseuille.")][0]
+    assert line[3] == "PASS" and rc == 0

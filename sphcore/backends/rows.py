@@ -24,7 +24,7 @@ from sphcore.physics.pressure import pressure_pair
 from sphcore.physics.surface_tension import colour_gradient_pair, colour_laplacian_pair, surface_tension_factor
 from sphcore.physics.viscosity import artificial_pair, morris_pair, muller_pair
 from sphcore.physics.vorticity import confinement, curl_pair
-from sphcore.physics.walls import fill_fraction, signed_distance, wall_terms
+from sphcore.physics.walls import fill_fraction, signed_distance, wall_terms, wall_viscosity
 from sphcore.physics.shifting import SURFACE_CONCENTRATION, concentration_gradient_pair
 from sphcore.physics.xsph import xsph_pair
 
@@ -111,6 +111,11 @@ def acceleration_row(kernel, viscosity, periodic, prm, i, x, v, m, rho, p, nbr, 
     ax += fill[i] * wx
     ay += fill[i] * wy
     az += fill[i] * wz
+    if viscosity == 3:  # Viscosity.MORRIS: no-slip walls
+        kv = fill[i] * wall_viscosity(prm, wall_kind, wall_data, wall_tables, x[i, 0], x[i, 1], x[i, 2], rho_i)
+        ax += kv * v[i, 0]
+        ay += kv * v[i, 1]
+        az += kv * v[i, 2]
     a[i, 0] = ax
     a[i, 1] = ay
     a[i, 2] = az

@@ -20,6 +20,12 @@ flat wall the sums reduce to tables of d (``sphcore.boundaries.wall_tables``):
     rho_i += rho0 Phi(d)
     a_i   += rho0/rho_i^2 (-2 p_i G0(d) n + rho_i (b_n G1(d) n + G2(d) b_t)),   b_n = b . n, b_t = b - b_n n
 
+With the Morris viscosity a wall is also no-slip: the virtual particles move with
+v_j = -(d_j / d_i) v_i (d_j their depth behind the wall; Morris, Fox & Zhu 1997, section 3.2), so
+v_i - v_j = beta v_i, beta = min(3, z/d) (boundaries.BETA_MAX), and the Morris pair term summed over them is
+
+    a_i += 2 mu / rho_i Gv(d) v_i          (``wall_viscosity``; Gv < 0: it drags towards rest)
+
 Where the fluid side is not full — a free surface meeting a wall, a splash reaching it — there is
 no fluid to continue behind the wall either. The wall terms are therefore scaled by the fill
 fraction theta_i = min(1, rho_fluid_i / (rho0 - rho_wall_i)): the fluid-side density over what a
@@ -283,6 +289,18 @@ def wall_terms(kernel, prm, want_force, kinds, data, tables, x, y, z, p_i, rho_i
         ay += scale_f * fy
         az += scale_f * fz
     return drho, ax, ay, az
+
+
+@njit(cache=True)
+def wall_viscosity(prm, kinds, data, tables, x, y, z, rho_i):
+    """k such that the no-slip wall drag is a_i += k v_i: 2 mu / rho_i sum over near walls of Gv(d)
+    (module docstring); 0 away from walls."""
+    k = 0.0 * prm.H
+    for q in range(kinds.shape[0]):
+        d, _, _, _ = signed_distance(kinds[q], data[q], x, y, z)
+        if d < prm.H:
+            k += table_lookup(tables[4], d, prm.wall_table_end)
+    return 2.0 * prm.mu / rho_i * k
 
 
 @njit(cache=True, inline="always")
