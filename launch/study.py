@@ -163,11 +163,14 @@ def report_markdown(results: list[dict], terms: list[dict], meta: dict, image: s
     for case in dict.fromkeys(r["case"] for r in results):
         rs = [r for r in results if r["case"] == case]
         lines += [f"### {case}", "", "| solver | kernel | dx (m) | precision | CFL | particles | error | "
-                  "wall s per sim s | particle-steps/s | outcome |", "|---|---|---:|---|---:|---:|---:|---:|---:|---|"]
+                  "wall s per sim s | work (1e6 particle-steps per sim s) | particle-steps/s | outcome |",
+                  "|---|---|---:|---|---:|---:|---:|---:|---:|---:|---|"]
         for r in rs:
             pss = f"{r['particle_steps_per_s']:.3g}" if r["particle_steps_per_s"] else "-"
+            work = (f"{r['particles'] * r['steps'] / r['sim_time'] / 1e6:.3g}"
+                    if r.get("steps") and r.get("sim_time") else "-")
             lines.append(f"| {r['solver']} | {r['kernel']} | {r['dx']:g} | {r['precision']} | {r['cfl']:g} | "
-                         f"{r['particles'] or '-'} | {r['error']:.3g} | {r['wall_per_sim_s']:.3g} | {pss} | "
+                         f"{r['particles'] or '-'} | {r['error']:.3g} | {r['wall_per_sim_s']:.3g} | {work} | {pss} | "
                          f"{r['outcome'][:60]} |")
         ok = [r for r in rs if r["outcome"] == "ok" and np.isfinite(r["error"])]
         lines += ["", "Cheapest setting for an error budget:", ""]

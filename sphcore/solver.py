@@ -40,6 +40,9 @@ def _make_grid(scene, walls, H, dtype):
     return grid_mod.Grid(lo, hi, H, periodic, dtype)
 
 
+CFL_LIMIT = 1.0  # a fixed time.dt beyond the CFL-1 acoustic/force/viscous limit stops the run
+
+
 class SimulationError(RuntimeError):
     """The run became unphysical; the message names the step, the cause and the particles."""
 
@@ -259,19 +262,38 @@ class Simulation:
                        f"{self.scene.run.max_density_ratio:g}): the time step or the speed of sound is too "
                        "small for this flow", density=True)
         tm = self.scene.time
-        dt, limit = choose_dt(tm.mode, tm.dt, tm.cfl, self.h, self.scene.sph.sound_speed, math.sqrt(vmax2),
-                              math.sqrt(amax2), self.nu)
+        c0 = self.scene.sph.sound_speed
+        if vmax2 >= c0 * c0:
+            # weak compressibility assumes |v| << c0 (Mach 0.1); at Mach 1 the run is blowing up
+            self._fail(f"flow speed reached the speed of sound (max |v| = {math.sqrt(vmax2):.3g} m/s >= "
+                       f"sph.sound_speed = {c0:g} m/s): energy blow-up; raise sph.sound_speed or shorten the "
+                       "time step", rows="fastest")
+        dt, limit = choose_dt(tm.mode, tm.dt, tm.cfl, self.h, c0, math.sqrt(vmax2), math.sqrt(amax2), self.nu)
+        if tm.mode == "fixed":
+            # the explicit scheme's stability limit is CFL ~ 1; a fixed step beyond it diverges
+            bound, name = choose_dt("adaptive", math.inf, CFL_LIMIT, self.h, c0, math.sqrt(vmax2),
+                                    math.sqrt(amax2), self.nu)
+            if dt > bound:
+                self._fail(f"CFL violation: time.dt = {dt:.3g} s exceeds the {name} stability limit "
+                           f"{bound:.3g} s (CFL {CFL_LIMIT:g}); use a smaller time.dt or time.mode = 'adaptive'",
+                           rows="fastest")
         if dt_cap is not None and dt_cap < dt:
             dt, limit = dt_cap, "until"
         self.limit_counts[limit] += 1
         self.last_limit = limit
         return dt
 
-    def _fail(self, cause: str, density: bool = False):
+    def _fail(self, cause: str, density: bool = False, rows: str = "bad"):
+        """Raise SimulationError naming the step, the cause and the particles concerned: the
+        over-compressed ones (density), the fastest and most accelerated ten (rows="fastest"), or
+        those holding NaN/Inf."""
         s = self.state
         n = s.n_owned
         if density:
             rows = np.nonzero(s.rho[:n] / self.prm.rho0 > self.scene.run.max_density_ratio)[0]
+        elif rows == "fastest":
+            score = np.einsum("ij,ij->i", s.v[:n], s.v[:n]) + np.einsum("ij,ij->i", s.a[:n], s.a[:n]) * self.h
+            rows = np.argsort(-score, kind="stable")[:10]
         else:
             finite = np.isfinite(s.x[:n]).all(1) & np.isfinite(s.v[:n]).all(1) & np.isfinite(s.a[:n]).all(1)
             rows = np.nonzero(~(finite & np.isfinite(s.rho[:n])))[0]

@@ -30,6 +30,8 @@ def test_a_real_configuration_is_measured_and_reported(tmp_path):
         assert r["wall_per_sim_s"] == r["wall_s"] / r["sim_time"]
     text = report_markdown([r64, r32], [], {"command": "sph study", "date": "today", "machine": "here"}, "p.png")
     assert "| wcsph | wendland_c2 | 0.1 | f32 | 0.25 |" in text
+    work = r32["particles"] * r32["steps"] / r32["sim_time"] / 1e6
+    assert f"| {work:.3g} |" in text  # the machine-independent cost: particle-steps per simulated second
     assert "- 20%: wendland_c2, dx=0.1" in text  # both are within 20 %: the cheaper one is named
     plot([r64, r32], tmp_path / "p.png")
     assert (tmp_path / "p.png").stat().st_size > 10_000

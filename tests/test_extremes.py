@@ -1,0 +1,228 @@
+"""Stability at the extremes: over a hundred configurations at and beyond the limits of every knob.
+
+Each one either runs stable — finite state, no leak, every particle on the fluid side of every wall —
+or stops at once with a SimulationError naming the step, the cause and particle ids. Never a
+silent NaN, never a particle through a wall. A few outcomes are certain and asserted as such (one
+particle falling is stable; a fixed step 20 times the acoustic limit stops with "CFL violation").
+The default suite runs the matrix on the tiny scene (498 particles) for a few steps;
+``pytest -m slow`` runs it longer. scripts/stability_map.py draws the map of docs/ACCURACY.md.
+"""
+import re
+
+import numpy as np
+import pytest
+
+from sphcore.physics.walls import signed_distance
+from sphcore.scene import SceneError, load_scene
+from sphcore.solver import Simulation, SimulationError
+from sphcore.state import ParticleState
+
+from conftest import CONFIGS
+
+TINY = CONFIGS / "tiny.toml"
+DIAGNOSTIC = re.compile(r"^step \d+ \(t = [^)]+\): (.+); particles \d+")
+CAUSES = ("NaN or Inf", "density ratio", "speed of sound", "CFL violation")
+
+
+def run(overrides=(), precision="f64", steps=12, place=None):
+    """Run the tiny scene; returns ("stable", sim) or ("stopped", message). ``place(sim)`` may put
+    particles by hand (returns the new ParticleState). sim.leaks_after_first counts the leaks
+    after the first step (a placement can start particles moving into a wall)."""
+    sim = Simulation(load_scene(TINY, list(overrides)), precision)
+    if place is not None:
+        sim.state = place(sim)
+    try:
+        for k in range(steps):
+            sim.step()
+            if k == 0:
+                first = sim.leaks
+        sim.leaks_after_first = sim.leaks - first
+    except SimulationError as e:
+        return "stopped", str(e)
+    return "stable", sim
+
+
+def check(outcome, result):
+    """The rule every configuration obeys; returns the outcome for cases that assert it too."""
+    if outcome == "stopped":
+        m = DIAGNOSTIC.match(result)
+        assert m, f"a stop must name step, cause and particles: {result!r}"
+        assert any(c in m.group(1) for c in CAUSES), result
+        return outcome
+    sim = result
+    s = sim.state
+    n = s.n_owned
+    for name in ("x", "v", "a", "rho"):
+        assert np.isfinite(getattr(s, name)[:n]).all(), f"silent NaN/Inf in {name}"
+    assert sim.leaks_after_first == 0, f"{sim.leaks_after_first} particles were found behind a wall"
+    if not getattr(check, "allow_first_step_leaks", False):
+        assert sim.leaks == 0, f"{sim.leaks} particles were found behind a wall"
+    w = sim.walls
+    for q in range(len(w.kind)):
+        d = np.array([signed_distance(w.kind[q], w.data[q], *s.x[i])[0] for i in range(n)])
+        assert d.min() >= 0.0, f"a particle ended behind wall {q} (d = {d.min():.3g} m)"
+    return outcome
+
+
+# -- the matrix (each axis one knob, the rest the tiny scene's) --------------------------------------
+CFL = [0.05, 0.1, 0.25, 0.5, 1.0, 1.5, 2.0]
+FIXED_DT = [1e-5, 1e-4, 5e-4, 2e-3, 1e-2]           # acoustic limit h/c0 = 7.2e-4 s
+SOUND = [0.5, 2.0, 5.0, 20.0, 100.0, 1000.0]          # impact speed ~2 m/s
+ALPHA = [0.0, 0.01, 0.1, 1.0, 10.0]
+NU = [1e-7, 1e-5, 1e-3, 1e-1]                         # Morris viscosity, m^2/s
+GRAVITY = [0.0, 1.0, 9.81, 1e3, 1e5]
+SPACING = [0.006, 0.0125, 0.02]
+KERNELS = ["muller", "cubic_spline", "wendland_c2"]
+PRECISIONS = ["f64", "f32"]
+
+MATRIX = (
+    [(f"cfl={c}", ["time.mode='adaptive'", f"time.cfl={c}"], p) for c in CFL for p in PRECISIONS]
+    + [(f"fixed_dt={dt}", ["time.mode='fixed'", f"time.dt={dt}"], p) for dt in FIXED_DT for p in PRECISIONS]
+    + [(f"fixed_dt={dt},leapfrog", ["time.mode='fixed'", f"time.dt={dt}", "time.integrator='leapfrog'"], "f64")
+       for dt in FIXED_DT]
+    + [(f"c0={c}", [f"sph.sound_speed={c}"], p) for c in SOUND for p in PRECISIONS]
+    + [(f"alpha={a}", [f"sph.alpha={a}"], p) for a in ALPHA for p in PRECISIONS]
+    + [(f"morris_nu={nu}", ["sph.viscosity='morris'", f"sph.nu={nu}"], p) for nu in NU for p in PRECISIONS]
+    + [(f"gravity={g}", [f"forces.gravity=[0,{-g},0]"], p) for g in GRAVITY for p in PRECISIONS]
+    + [(f"spacing={dx}", [f"particles.spacing={dx}"], "f64") for dx in SPACING]
+    + [(f"{k},cfl=1.5", [f"sph.kernel='{k}'", "time.cfl=1.5"], p) for k in KERNELS for p in PRECISIONS]
+    + [(f"{k},c0=2", [f"sph.kernel='{k}'", "sph.sound_speed=2.0"], "f64") for k in KERNELS]
+    + [(name, over, p) for name, over in (("xsph=1", ["terms.xsph=1.0"]), ("shifting=10", ["terms.shifting=10.0"]),
+                                          ("surface_tension=1e3", ["terms.surface_tension=1000.0"]),
+                                          ("vorticity=10", ["terms.vorticity_confinement=10.0"]))
+       for p in PRECISIONS]
+)
+
+
+@pytest.mark.parametrize("name,overrides,precision", MATRIX, ids=[m[0] + "," + m[2] for m in MATRIX])
+def test_matrix(name, overrides, precision):
+    check(*run(overrides, precision))
+
+
+def test_the_matrix_has_a_hundred_configurations():
+    assert len(MATRIX) + len(SPECIAL) * len(PRECISIONS) >= 100
+
+
+# -- special placements ----------------------------------------------------------------------------
+
+def _keep(sim, rows, x=None, v=None):
+    s = sim.state
+    x = s.x[rows] if x is None else np.asarray(x, dtype=float)
+    v = np.zeros_like(x) if v is None else np.asarray(v, dtype=float)
+    return ParticleState.create(s.id[rows], x, v, s.m[rows], sim.dtype)
+
+
+def _one(sim):
+    return _keep(sim, [0], x=[[0.075, 0.1, 0.075]])
+
+
+def _two(sim):
+    return _keep(sim, [0, 1], x=[[0.075, 0.1, 0.075], [0.075 + 0.5 * sim.dx, 0.1, 0.075]])
+
+
+def _coincident(sim):
+    s = sim.state
+    x = s.x.copy()
+    x[1] = x[0]  # two particles at exactly the same place
+    return ParticleState.create(s.id, x, s.v, s.m, sim.dtype)
+
+
+def _on_cell_faces(sim):
+    """Every particle moved onto the nearest grid-cell corner plane in x (exactly on a face)."""
+    s = sim.state
+    g = sim.grid
+    x = s.x.copy()
+    k = np.round((x[:, 0] - g.origin[0]) / g.cell[0])
+    x[:, 0] = g.origin[0] + k * g.cell[0]
+    keep = np.unique(np.round(x / (0.25 * sim.dx)), axis=0, return_index=True)[1]  # no exact duplicates
+    return ParticleState.create(s.id[keep], x[keep], s.v[keep], s.m[keep], sim.dtype)
+
+
+def _on_walls(sim):
+    """Particles exactly on the floor (d = 0), moving into it: the first drift takes them behind
+    it (counted as leaks), the guard puts them back, and none may be behind it afterwards."""
+    s = sim.state
+    x = s.x.copy()
+    low = x[:, 1] < x[:, 1].min() + 0.5 * sim.dx
+    x[low, 1] = sim.walls.lo[1]
+    v = s.v.copy()
+    v[low, 1] = -1.0
+    return ParticleState.create(s.id, x, v, s.m, sim.dtype)
+
+
+def _collapsed(sim):
+    """The whole fluid squeezed into a ball of a tenth of a spacing."""
+    s = sim.state
+    c = s.x.mean(0)
+    x = c + (s.x - c) * 1e-3
+    return ParticleState.create(s.id, x, s.v, s.m, sim.dtype)
+
+
+def _fast_into_wall(sim):
+    s = sim.state
+    v = s.v.copy()
+    v[:, 1] = -50.0  # 50 m/s into the floor, faster than the default c0 = 20 m/s
+    return ParticleState.create(s.id, s.x, v, s.m, sim.dtype)
+
+
+SPECIAL = [("one particle", _one, "stable"), ("two particles", _two, None), ("coincident", _coincident, None),
+           ("on cell faces", _on_cell_faces, None), ("on the floor", _on_walls, None),
+           ("collapsed column", _collapsed, "stopped"), ("50 m/s into the floor", _fast_into_wall, "stopped")]
+
+
+@pytest.mark.parametrize("name,place,expected", SPECIAL, ids=[s[0] for s in SPECIAL])
+@pytest.mark.parametrize("precision", PRECISIONS)
+def test_special_placements(name, place, expected, precision, monkeypatch):
+    monkeypatch.setattr(check, "allow_first_step_leaks", place is _on_walls, raising=False)
+    outcome = check(*run(precision=precision, place=place))
+    if expected:
+        assert outcome == expected
+
+
+def test_one_particle_falls_freely():
+    outcome, sim = run(["time.mode='fixed'", "time.dt=1e-4"], place=_one, steps=50)
+    assert outcome == "stable"
+    assert np.isclose(sim.state.v[0, 1], -9.81 * 50 * 1e-4, rtol=1e-9)
+
+
+def test_a_fixed_step_far_beyond_the_limit_stops_with_a_cfl_violation():
+    outcome, message = run(["time.mode='fixed'", "time.dt=1e-2"])
+    assert outcome == "stopped" and "CFL violation" in message and "step 0 " in message
+
+
+def test_mach_one_stops_with_the_speed_of_sound_named():
+    outcome, message = run(place=_fast_into_wall)
+    assert outcome == "stopped" and "speed of sound" in message and "step 0 " in message
+
+
+def test_collapsed_column_stops_on_the_density_ratio():
+    outcome, message = run(place=_collapsed)
+    assert outcome == "stopped" and "density ratio" in message
+
+
+@pytest.mark.parametrize("offset", [1e2, 1e4])
+def test_float32_far_from_the_origin(offset):
+    """The tiny scene moved 'offset' metres away: float32 keeps ~7 digits, so at 1e4 m a spacing of
+    1.25e-2 m is resolved to ~8 %. It must still either run or stop with a diagnostic."""
+    sc = load_scene(TINY)
+    over = [f"domain.center=[{offset + c},{c2},{c3}]" for c, c2, c3 in [sc.domain.center]]
+    blocks = [f"fluid.blocks[0].min=[{offset},0,0]", f"fluid.blocks[0].max=[{offset + 0.15},0.0375,0.15]",
+              f"fluid.blocks[1].center=[{offset + 0.075},0.12,0.075]"]
+    check(*run(over + blocks, "f32"))
+
+
+def test_an_empty_block_is_a_scene_error_not_a_crash():
+    """A fluid block that falls outside the tank (an empty region instead of fluid) is refused."""
+    with pytest.raises(SceneError, match="no particle"):
+        Simulation(load_scene(TINY, ["fluid.blocks[1].center=[5,5,5]"]))
+
+
+def test_a_large_empty_tank_is_fine():
+    """One drop in a tank 100 times its size: mostly empty cells."""
+    check(*run(["domain.size=[3,3,3]", "domain.center=[0.075,1.4,0.075]"]))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name,overrides,precision", MATRIX, ids=[m[0] + "," + m[2] for m in MATRIX])
+def test_matrix_long(name, overrides, precision):
+    check(*run(overrides, precision, steps=300))
