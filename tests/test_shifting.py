@@ -69,7 +69,7 @@ def test_no_shift_along_a_wall_normal_or_in_the_surface_layer():
 
 
 def test_off_means_not_in_the_step():
-    sim = Simulation(_periodic_box(), "f64")
+    sim = Simulation(_periodic_box(["terms.shifting=0.0"]), "f64")
     sim.step()
     assert "shifting" not in sim.timers.summary()
     on = Simulation(_periodic_box(["terms.shifting=1.0"]), "f64")
