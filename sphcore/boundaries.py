@@ -227,6 +227,19 @@ def lattice_gradient_moment(kernel: Kernel, dim: int, H: float, dx: float) -> fl
     return -total / lattice_sum(kernel, dim, H, dx)
 
 
+def lattice_pressure_diagonal(kernel: Kernel, dim: int, H: float, dx: float, rho0: float) -> float:
+    """D0 = sum_j |m grad W(x_j)|^2 over an infinite cubic lattice (m = rho0 / S, calibrated gradient):
+    DFSPH's diagonal D_i of a particle with a full neighbourhood at rest (physics/dfsph.py)."""
+    _, s_g, _ = kernel_constants(kernel, dim, H)
+    s_g /= lattice_gradient_moment(kernel, dim, H, dx)
+    m = rho0 / lattice_sum(kernel, dim, H, dx)
+    K = int(math.ceil(H / dx)) + 1
+    r = np.arange(-K, K + 1) * dx
+    grids = np.meshgrid(*([r] * dim), indexing="ij")
+    dist = np.sqrt(sum(g**2 for g in grids)).ravel()
+    return float(sum((m * dw_dr(int(kernel), float(d), H, s_g)) ** 2 for d in dist if d > 0.0))
+
+
 def lattice_sum(kernel: Kernel, dim: int, H: float, dx: float) -> float:
     """S = sum_j W(|x_j|) over an infinite cubic lattice of spacing dx (self included)."""
     s_w, _, _ = kernel_constants(kernel, dim, H)

@@ -64,7 +64,7 @@ def write_part(root: Path, step: int, rank: int, sim) -> dict:
     path = folder / part_name(rank)
     tmp = folder / f".{part_name(rank)}.tmp"
     with open(tmp, "wb") as f:
-        np.savez(f, id=s.id[:n], x=s.x[:n], v=s.v[:n], m=s.m[:n])
+        np.savez(f, id=s.id[:n], x=s.x[:n], v=s.v[:n], m=s.m[:n], **{"extra_" + k: a[:n] for k, a in s.extra.items()})
     os.replace(tmp, path)
     return {"file": part_name(rank), "particles": int(n), "sha256": _sha256(path)}
 
@@ -101,7 +101,7 @@ def commit(root: Path, step: int, info: dict, scene_dict: dict, parts: list[dict
 class Checkpoint:
     path: Path
     manifest: dict
-    arrays: dict  # id, x, v, m of all particles, sorted by id
+    arrays: dict  # id, x, v, m (and extra_* carried arrays) of all particles, sorted by id
 
     @property
     def step(self) -> int:
@@ -138,13 +138,13 @@ def load(path: Path) -> Checkpoint:
         if _sha256(p) != entry["sha256"]:
             raise CheckpointError(f"{folder}: part {entry['file']} is corrupt (checksum mismatch)")
         with np.load(p) as z:
-            part = {k: z[k] for k in ("id", "x", "v", "m")}
+            part = {k: z[k] for k in z.files if k in ("id", "x", "v", "m") or k.startswith("extra_")}
         if len(part["id"]) != entry["particles"]:
             raise CheckpointError(f"{folder}: part {entry['file']} holds {len(part['id'])} particles, the "
                                   f"manifest says {entry['particles']}")
         parts.append(part)
     from sphcore.state import merge_by_id
-    arrays = merge_by_id(parts, ("id", "x", "v", "m"))
+    arrays = merge_by_id(parts, tuple(parts[0]) if parts else ("id", "x", "v", "m"))
     if len(arrays["id"]) != manifest["particles"] or np.any(np.diff(arrays["id"]) <= 0):
         raise CheckpointError(f"{folder}: {len(arrays['id'])} particles with duplicates or gaps; the run had "
                               f"{manifest['particles']}")
@@ -161,7 +161,10 @@ def restore(sim, ckpt: Checkpoint):
     if len(a["id"]) != sim.n_particles or not np.array_equal(a["id"], np.sort(sim.state.id)):
         raise CheckpointError(f"{ckpt.path}: its particles do not match the scene's ({len(a['id'])} vs "
                               f"{sim.n_particles})")
-    sim.state = ParticleState.create(a["id"], a["x"], a["v"], a["m"], sim.dtype)
+    extra = {k[len("extra_"):]: v for k, v in a.items() if k.startswith("extra_")}
+    extra = {k: extra.get(k, np.zeros_like(v[:0], shape=(len(a["id"]),) + v.shape[1:]))
+             for k, v in sim.state.extra.items()}  # what this solver carries (zeros if the file lacks it)
+    sim.state = ParticleState.create(a["id"], a["x"], a["v"], a["m"], sim.dtype, extra=extra)
     sim._resize_scratch(sim.state.n)
     sim.step_index, sim.t, sim.dt, sim.dt_prev = int(m["step"]), float(m["t"]), float(m["dt"]), float(m["dt_prev"])
     sim.leaks, sim.max_neighbours = int(m["leaks"]), int(m["max_neighbours"])

@@ -39,7 +39,7 @@ class NullHalo:
         return
         yield
 
-    def exchange_ghosts(self, sim, phase, arrays):
+    def exchange_ghosts(self, sim, phase, arrays, kind=None):
         return
         yield
 
@@ -47,8 +47,26 @@ class NullHalo:
         return stats
         yield
 
+    def reduce_sum(self, sim, phase, value):
+        return value
+        yield
+
 
 NULL_HALO = NullHalo()
+
+
+def _carried(state, n) -> dict:
+    """What travels with a particle to another peer: id, x, v, m and the state's extra arrays."""
+    arrays = {name: getattr(state, name)[:n] for name in ("id", "x", "v", "m")}
+    arrays.update({"extra_" + k: a[:n] for k, a in state.extra.items()})
+    return arrays
+
+
+def _state_of(parts, dtype) -> ParticleState:
+    """A state from particle messages (_carried dicts), in order."""
+    cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    extra = {k[len("extra_"):]: a for k, a in cat.items() if k.startswith("extra_")}
+    return ParticleState.create(cat["id"], cat["x"], cat["v"], cat["m"], dtype, extra=extra)
 
 
 def encode_commands(commands: list) -> np.ndarray:
@@ -91,10 +109,13 @@ class PeerHalo:
         self.bytes_sent[kind] = self.bytes_sent.get(kind, 0) + sum(a.nbytes for a in arrays.values())
         self.transport.send(dest, tag, arrays)
 
+    _extra_shapes = {}  # the state's extra arrays (name -> a row-shaped array), set by exchange_positions
+
     def _check_particles(self, msg, dtype, q, step):
         """Particle arrays of a received message have the fields, lengths and dtypes we expect."""
         n = len(msg.get("id", ()))  # the ids set the length the others must have
         expected = {"id": ((n,), np.int64), "x": ((n, 3), dtype), "v": ((n, 3), dtype), "m": ((n,), dtype)}
+        expected.update({"extra_" + k: ((n,) + a.shape[1:], dtype) for k, a in self._extra_shapes.items()})
         for k, (shape, dt) in expected.items():
             a = msg.get(k)
             if a is None or a.shape != shape or a.dtype != dt:
@@ -129,7 +150,7 @@ class PeerHalo:
         new = type(self.dec).from_histograms(ncell, self.dec.dims, [total[f"h{a}"] for a in range(3)],
                                              self.dec.periodic)
         owner = new.owner(cells)
-        own = {name: getattr(s, name)[:n] for name in ("id", "x", "v", "m")}
+        own = _carried(s, n)
         for q in self.others:
             self._send(q, (step, "migrate"), {k: v[owner == q] for k, v in own.items()}, "migrate")
         self.migrated += int(np.count_nonzero(owner != self.rank))
@@ -138,8 +159,7 @@ class PeerHalo:
         for q in self.others:
             parts.append((yield from self.transport.recv(q, (step, "migrate"))))
             self._check_particles(parts[-1], sim.dtype, q, step)
-        new_state = ParticleState.create(*(np.concatenate([p[k] for p in parts]) for k in ("id", "x", "v", "m")),
-                                         sim.dtype)
+        new_state = _state_of(parts, sim.dtype)
         new_state.n_owned = new_state.n
         sim.state = new_state
         sim._resize_scratch(new_state.n)
@@ -154,7 +174,8 @@ class PeerHalo:
         s = sim.state
         n = s.n_owned
         # 1a: particles that crossed into a neighbour's block go to it (they moved less than a cell)
-        own = {name: getattr(s, name)[:n] for name in ("id", "x", "v", "m")}
+        own = _carried(s, n)
+        self._extra_shapes = {k: a[:0] for k, a in s.extra.items()}
         cells = sim.grid.cells_of(own["x"])
         owner = self.dec.owner(cells)
         keep = owner == self.rank
@@ -187,8 +208,7 @@ class PeerHalo:
             self.ghosts_received += count
             self._ghost_rows[q] = (first, first + count)
             first += count
-        new = ParticleState.create(*(np.concatenate([owned[k]] + [g[k] for g in ghosts]) for k in ("id", "x", "v", "m")),
-                                   sim.dtype)
+        new = _state_of([owned] + ghosts, sim.dtype)
         new.n_owned = n_own
         sim.state = new
         sim._resize_scratch(new.n)
@@ -197,16 +217,17 @@ class PeerHalo:
         s = sim.state
         yield from self.exchange_ghosts(sim, "fields", {"rho": s.rho, "p": s.p})
 
-    def exchange_ghosts(self, sim, phase, arrays):
+    def exchange_ghosts(self, sim, phase, arrays, kind=None):
         """Send the rows of ``arrays`` (per-row arrays of the sorted state) that are the neighbours'
-        ghosts, in the order of exchange 1; fill our ghost rows with theirs."""
+        ghosts, in the order of exchange 1; fill our ghost rows with theirs. ``phase`` names the
+        message (unique within a step); bytes are counted under ``kind`` (default: the phase)."""
         step = sim.step_index
         s = sim.state
         where = np.empty(s.n, dtype=np.int64)  # row before the grid sort -> row after it
         where[sim.grid.last_permutation] = np.arange(s.n)
         for q in self.neighbours:
             rows = where[self._sent_rows[q]]
-            self._send(q, (step, phase), {k: a[rows] for k, a in arrays.items()}, phase)
+            self._send(q, (step, phase), {k: a[rows] for k, a in arrays.items()}, kind or phase)
         for q in self.neighbours:
             msg = yield from self.transport.recv(q, (step, phase))
             lo, hi = self._ghost_rows[q]
@@ -216,6 +237,19 @@ class PeerHalo:
                     raise RuntimeError(f"peer {self.rank}, step {step}: {phase} message from peer {q} has {k} of "
                                        f"shape {msg[k].shape}, expected {(hi - lo,) + a.shape[1:]}")
                 a[rows] = msg[k]
+
+    def reduce_sum(self, sim, phase, value: int):
+        """Global sum of an integer (exact, so every peer gets the same total in any order); the
+        DFSPH solvers' error in 2^-32 units. ``phase`` names the message (unique within a step)."""
+        step = sim.step_index
+        message = {"sum": np.array([value], dtype=np.int64)}
+        for q in self.others:
+            self._send(q, (step, phase), message, "reduce")
+        total = int(value)
+        for q in self.others:
+            msg = yield from self.transport.recv(q, (step, phase))
+            total += int(msg["sum"][0])
+        return total
 
     def reduce_max(self, sim, stats):
         """Global max of |v|^2, |a|^2, compression and the NaN count; rank 0's message also carries

@@ -46,6 +46,7 @@ class Params(NamedTuple):
     inv_s: float        # 1 / S, S = full-lattice kernel sum (1/m^dim); mass m = rho0 / S
     dim3: bool          # True for 3D scenes
     wall_table_end: float  # wall tables span d in [0, wall_table_end] (m), boundaries.table_end
+    dfsph_d0: float     # DFSPH diagonal of a full neighbourhood (boundaries.lattice_pressure_diagonal; kg^2/m^8 in 3D)
 
 
 def make_params(dtype, **values) -> Params:

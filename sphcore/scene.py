@@ -76,6 +76,14 @@ class Fluid:
 
 @dataclass(frozen=True)
 class SPH:
+    solver: str = spec("wcsph", "pressure solver: wcsph (weakly compressible, pressure from the EOS) or dfsph "
+                       "(incompressible, Bender & Koschier 2017: pressure solved every step; eos and sound_speed "
+                       "unused)", choices=("wcsph", "dfsph"))
+    density_tolerance: float = spec(0.001, "dfsph: the density solve iterates until the mean |rho*/rho0 - 1| is "
+                                    "below this", range=(0.0, 1.0), min_exclusive=True)
+    divergence_tolerance: float = spec(0.001, "dfsph: the divergence solve iterates until the mean |D rho/Dt| dt / "
+                                       "rho0 is below this (0 = no divergence solve)", range=(0.0, 1.0))
+    max_iterations: int = spec(100, "dfsph: most iterations of either solve in one step", range=(1, 10_000))
     kernel: str = spec("wendland_c2", "smoothing kernel family", choices=tuple(KERNELS))
     support: float = spec(2.3, "support radius H in units of the spacing (about 50 neighbours in 3D at 2.3)",
                           range=(1.0, 4.0))
@@ -570,6 +578,9 @@ def _check_combinations(s: Scene) -> Scene:
     for i, pl in enumerate(s.domain.planes):
         if math.hypot(*pl.normal) == 0:
             raise SceneError(f"domain.planes[{i}].normal = {list(pl.normal)!r}: must be non-zero")
+    if s.sph.solver == "dfsph" and s.time.integrator != "symplectic_euler":
+        raise SceneError(f"time.integrator = {s.time.integrator!r}: sph.solver = 'dfsph' integrates with "
+                         "'symplectic_euler' (its pressure solve predicts v* = v + dt a and then moves x by dt v*)")
     if s.sph.viscosity in ("muller", "morris") and s.sph.nu <= 0:
         raise SceneError(f"sph.nu = {s.sph.nu!r}: viscosity = {s.sph.viscosity!r} needs nu > 0")
     if s.fluid.initial_flow == "taylor_green":

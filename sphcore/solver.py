@@ -14,11 +14,13 @@ import numpy as np
 
 from sphcore import grid as grid_mod
 from sphcore.backends import cpu
-from sphcore.boundaries import build_walls, lattice_gradient_moment, lattice_sum, table_end
+from sphcore.boundaries import (build_walls, lattice_gradient_moment, lattice_pressure_diagonal, lattice_sum,
+                                table_end)
 from sphcore.choices import EOSES, INTEGRATORS, KERNELS, VISCOSITIES, Integrator, Viscosity
 from sphcore.halo import NULL_HALO
 from sphcore.initial import generate_particles
 from sphcore.params import make_params
+from sphcore.physics.dfsph import ERROR_QUANTUM, MIN_ITERATIONS
 from sphcore.physics.external import ramp_factor
 from sphcore.physics.kernels import kernel_constants, w
 from sphcore.scene import Scene
@@ -106,12 +108,21 @@ class Simulation:
             restitution=scene.boundary.restitution, friction=scene.boundary.friction,
             wall_gap=scene.boundary.gap * dx, dx=dx, inv_s=1.0 / S, dim3=scene.dim == 3,
             wall_table_end=table_end(self.H, dx),
+            dfsph_d0=lattice_pressure_diagonal(self.kernel, scene.dim, self.H, dx, rho0) if sph.solver == "dfsph" else 1.0,
         )
         self.use_xsph = scene.terms.xsph > 0.0
         self.use_shifting = scene.terms.shifting > 0.0
         self.use_drift = self.use_xsph or self.use_shifting  # the drift uses v + dv
         self.use_surface_tension = scene.terms.surface_tension > 0.0
         self.use_vorticity = scene.terms.vorticity_confinement > 0.0
+        self.dfsph = sph.solver == "dfsph"
+        self.use_divergence_solve = self.dfsph and sph.divergence_tolerance > 0.0
+        # per solver ("density", "divergence"): steps solved, iterations in all, most in one step,
+        # steps that stopped at sph.max_iterations, and the last step's iterations and mean error
+        self.solver_stats = {name: {"steps": 0, "iterations": 0, "max": 0, "unconverged": 0, "last": 0,
+                                    "last_error": 0.0} for name in ("density", "divergence")}
+        if self.dfsph:  # kappa = p / rho^2 follows its particle: the next step's warm start (physics/dfsph.py)
+            self._state.extra["kappa"] = np.zeros(self.n_particles, dtype=dtype)
         self._resize_scratch(self.n_particles)
         self._lo = self.grid_lo.astype(dtype)
 
@@ -183,6 +194,12 @@ class Simulation:
         self._omega = np.zeros((n if self.use_vorticity else 0, 3), dtype=dtype)
         self._leaked = np.zeros(n, dtype=np.int8)
         self._fill = np.ones(n, dtype=dtype)  # wall fill fraction theta (physics/walls.py)
+        m = n if self.dfsph else 0  # DFSPH (physics/dfsph.py):
+        self._wgrad = np.zeros((m, 3), dtype=dtype)   # wall gradient g^wall (kg/m^4)
+        self._inv_d = np.zeros(m, dtype=dtype)        # 1 / D_i (m^8/kg^2 in 3D)
+        self._lam = np.zeros(m, dtype=dtype)          # lambda_i = kappa_i dt^2 of this iteration (m^3/kg ...)
+        self._lam_sum = np.zeros(m, dtype=dtype)      # sum of lambda_i over the density solve
+        self._v_star = np.zeros((m, 3), dtype=dtype)  # predicted velocity v* (m/s)
         self._scratch_n = n
 
     # -- stages --------------------------------------------------------------------------------
@@ -220,7 +237,12 @@ class Simulation:
             self._neighbours()                                     # x                -> order, neighbour lists
         with t("density"):
             e.density(prm)                                         # x, m             -> rho, p
+        if self.dfsph:
+            with t("dfsph_factor"):
+                e.dfsph_factor(prm)                                # x, m, rho        -> 1/D, g^wall; p = 0
         yield from self._exchange_fields(halo)                     # ghosts' rho, p   (exchange 2)
+        if self.use_divergence_solve:                              # v                -> v (div-free)
+            yield from self._pressure_solve(halo, prm, True, self.dt_prev or self.scene.time.dt)
         with t("forces"):
             e.forces(prm)                                          # x, v, rho, p     -> a
         if self.use_surface_tension:
@@ -245,12 +267,65 @@ class Simulation:
             stats = e.statistics()                                 # local max |v|, |a|, compression
         stats = yield from halo.reduce_max(self, stats)            # global max |v|, |a|, compression
         dt = self._choose_dt(dt_cap, stats)                        # -> dt (+ health check)
+        if self.dfsph:
+            with t("dfsph_kick"):
+                e.dfsph_kick(self.dtype.type(dt))                  # v, a (non-pressure) -> v*
+            yield from self._pressure_solve(halo, prm, False, dt)  # v*               -> v* (rho* = rho0)
+            with t("dfsph_kick"):
+                e.dfsph_finish(self.dtype.type(1.0 / dt))          # v*, lambda       -> a, p
         with t("integrate"):                                       # a                -> v, x; walls, periodic
             self.leaks += e.integrate(prm, self.dtype.type(dt), self.dtype.type(self.dt_prev))
         self.dt_prev = dt
         self.dt = dt
         self.t += dt
         self.step_index += 1
+
+    def _pressure_solve(self, halo, prm, divergence, dt, record=True):
+        """DFSPH's iterative solve (physics/dfsph.py): the divergence solver on v, or the density
+        solver on v*. Each iteration: lambda from the velocities, the global mean error, and unless
+        converged the pressure velocity update; ghosts' lambda and velocities follow every update."""
+        e, t = self.engine, self.timers
+        sph = self.scene.sph
+        name, field = ("divergence", "v") if divergence else ("density", "v_star")
+        tolerance = sph.divergence_tolerance if divergence else sph.density_tolerance
+        stage = f"{name}_solve"
+        dt_ = self.dtype.type(dt)
+        inv_dt = self.dtype.type(1.0 / dt)
+        if not divergence:  # warm start: apply the previous step's pressure (lam = kappa dt^2, set by the kick)
+            yield from self._exchange_rows(halo, "warm_lam", "lam")
+            with t(stage):
+                e.dfsph_update(prm, divergence, inv_dt)
+            yield from self._exchange_rows(halo, "warm_v", field)  # ghosts' v* after kick and warm start
+        it = 0
+        while True:
+            with t(stage):
+                err = e.dfsph_source(prm, divergence, dt_)
+            err = yield from halo.reduce_sum(self, f"{name}_err{it}", err)
+            mean = err / ERROR_QUANTUM / max(self.n_particles, 1)
+            if (mean <= tolerance and it >= MIN_ITERATIONS) or it >= sph.max_iterations:
+                break
+            yield from self._exchange_rows(halo, f"{name}_lam{it}", "lam")
+            with t(stage):
+                e.dfsph_update(prm, divergence, inv_dt)
+            yield from self._exchange_rows(halo, f"{name}_v{it}", field)
+            it += 1
+        if not record:
+            return
+        st = self.solver_stats[name]
+        st["steps"] += 1
+        st["iterations"] += it
+        st["max"] = max(st["max"], it)
+        st["unconverged"] += int(mean > tolerance)
+        st["last"] = it
+        st["last_error"] = mean
+
+    def _exchange_rows(self, halo, phase, name):
+        """Ghost rows of a per-row array (lam, v, v*) from their owners; nothing for one process."""
+        if halo is NULL_HALO:
+            return
+        host = self.engine.fetch(name)
+        yield from halo.exchange_ghosts(self, phase, {name: host}, kind="solver")
+        self.engine.store(name, host)
 
     def _choose_dt(self, dt_cap, stats):
         vmax2, amax2, dev, bad = stats
@@ -262,8 +337,8 @@ class Simulation:
                        f"{self.scene.run.max_density_ratio:g}): the time step or the speed of sound is too "
                        "small for this flow", density=True)
         tm = self.scene.time
-        c0 = self.scene.sph.sound_speed
-        if vmax2 >= c0 * c0:
+        c0 = 0.0 if self.dfsph else self.scene.sph.sound_speed  # DFSPH: no sound speed limits its step
+        if vmax2 >= c0 * c0 and not self.dfsph:
             # weak compressibility assumes |v| << c0 (Mach 0.1); at Mach 1 the run is blowing up
             self._fail(f"flow speed reached the speed of sound (max |v| = {math.sqrt(vmax2):.3g} m/s >= "
                        f"sph.sound_speed = {c0:g} m/s): energy blow-up; raise sph.sound_speed or shorten the "
@@ -312,11 +387,19 @@ class Simulation:
     def refresh_stages(self, halo):
         """refresh() as a generator over a halo (see stages)."""
         prm = self._ramped_params()
+        e = self.engine
         yield from halo.exchange_positions(self)
         self._neighbours()
-        self.engine.density(prm)
+        e.density(prm)
+        if self.dfsph:
+            e.dfsph_factor(prm)
         yield from self._exchange_fields(halo)
-        self.engine.forces(prm)
+        e.forces(prm)
+        if self.dfsph:  # the pressure the next step would solve for (p = 0 otherwise)
+            dt = self.dt or self.scene.time.dt
+            e.dfsph_kick(self.dtype.type(dt))
+            yield from self._pressure_solve(halo, prm, False, dt, record=False)
+            e.dfsph_finish(self.dtype.type(1.0 / dt))
 
     def _exchange_fields(self, halo):
         """Exchange 2; a device takes the ghosts' rho, p the halo wrote into the host mirror."""

@@ -19,7 +19,8 @@ p          (n,)      float    pressure (Pa)
 =========  ========  =======  ==========================================================
 
 ``extra`` holds further per-particle arrays that must follow the particles when rows are
-reordered (the grid reorders them with the rest). Per-step scratch of optional terms (the XSPH
+reordered (the grid reorders them with the rest), move with them to another peer and go into
+checkpoints: DFSPH's kappa = p / rho^2, its warm start (physics/dfsph.py). Per-step scratch of optional terms (the XSPH
 correction, the vorticity) lives in the solver instead, since it is recomputed every step.
 """
 from dataclasses import dataclass, field
@@ -39,9 +40,10 @@ class ParticleState:
     extra: dict = field(default_factory=dict)
 
     @classmethod
-    def create(cls, ids, x, v, m, dtype) -> "ParticleState":
-        """Build a state from initial arrays; derived fields start at zero."""
+    def create(cls, ids, x, v, m, dtype, extra=None) -> "ParticleState":
+        """Build a state from initial arrays; derived fields start at zero; ``extra``: carried arrays."""
         n = len(ids)
+        extra = {k: np.ascontiguousarray(a, dtype=dtype).reshape((n,) + np.shape(a)[1:]) for k, a in (extra or {}).items()}
         return cls(
             id=np.ascontiguousarray(ids, dtype=np.int64),
             x=np.ascontiguousarray(x, dtype=dtype).reshape(n, 3),
@@ -51,6 +53,7 @@ class ParticleState:
             rho=np.zeros(n, dtype=dtype),
             p=np.zeros(n, dtype=dtype),
             n_owned=n,
+            extra=extra,
         )
 
     @property

@@ -7,7 +7,9 @@ Monaghan 1992 (section 10) and Morris et al. 1997 (eqs. 29-30), with h = H/2 the
     viscous   dt_v = cfl * 0.5 * h^2 / nu        (physical viscosity models only)
 
 The adaptive step is the smallest of these and the scene's ``time.dt`` (the largest allowed step);
-the name of the binding limit is reported so users see what limits their run.
+the name of the binding limit is reported so users see what limits their run. An incompressible
+solver (DFSPH) has no speed of sound: c0 = 0 makes the "acoustic" limit the flow-speed CFL
+condition dt = cfl * h / max|v|.
 """
 import math
 
@@ -20,7 +22,7 @@ def choose_dt(mode: str, dt: float, cfl: float, h: float, c0: float, vmax: float
     if mode == "fixed":
         return dt, "fixed"
     best, name = dt, "max"
-    acoustic = cfl * h / (c0 + vmax)
+    acoustic = cfl * h / (c0 + vmax) if c0 + vmax > 0.0 else math.inf
     if acoustic < best:
         best, name = acoustic, "acoustic"
     if amax > 0.0:

@@ -133,6 +133,8 @@ CASES = {
                                              "sph.viscosity='muller'", "sph.nu=1e-4", "sph.kernel='muller'"),
                                        "f64", 2),
     "peers_f64": lambda: peers_case(scene("tiny.toml"), "f64", 2),
+    "dfsph_f64": lambda: steps_case(scene("tiny.toml", "sph.solver='dfsph'", "time.dt=0.002"), "f64", 3),
+    "dfsph_peers_f64": lambda: peers_case(scene("tiny.toml", "sph.solver='dfsph'", "time.dt=0.002"), "f64", 2),
 }
 
 

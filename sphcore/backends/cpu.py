@@ -10,8 +10,11 @@ a driver containing only the branches it uses.
 from numba import literally, njit, prange
 
 from sphcore.backends.literal import literal_dispatch
-from sphcore.backends.rows import (acceleration_row, boundaries_row, confinement_row, density_row, integrate_row,
-                                   shifting_row, statistics_row, surface_tension_row, vorticity_row, xsph_row)
+from sphcore.backends.rows import (acceleration_row, boundaries_row, confinement_row, density_row, dfsph_factor_row,
+                                   dfsph_finish_row, dfsph_kick_row, dfsph_source_row, dfsph_update_row,
+                                   integrate_row, shifting_row, statistics_row, surface_tension_row, vorticity_row,
+                                   xsph_row)
+from sphcore.physics.dfsph import quantized_error
 
 # Floating-point licences for the neighbour passes: reassociation (the sums over neighbours become
 # partial sums LLVM can schedule; 25-30 % faster forces), contraction into FMA, reciprocals and
@@ -45,6 +48,57 @@ def compute_acceleration(kernel, viscosity, periodic, prm, n, x, v, m, rho, p, n
     for i in prange(n):
         acceleration_row(kernel, viscosity, periodic, prm, i, x, v, m, rho, p, nbr, counts, wall_kind, wall_data,
                          wall_tables, fill, a)
+
+
+@literal_dispatch(2)
+@njit(cache=True, parallel=True, fastmath=FASTMATH)
+def dfsph_factor(kernel, periodic, prm, n, x, m, rho, nbr, counts, wall_kind, wall_data, wall_tables, fill, p, wgrad,
+                 inv_d, lam_sum):
+    """DFSPH wall gradient, 1 / D, p = 0 and lam_sum = 0 of rows 0..n-1 (rows.dfsph_factor_row)."""
+    literally(kernel)
+    literally(periodic)
+    for i in prange(n):
+        dfsph_factor_row(kernel, periodic, prm, i, x, m, rho, nbr, counts, wall_kind, wall_data, wall_tables, fill,
+                         p, wgrad, inv_d, lam_sum)
+
+
+@literal_dispatch(3)
+@njit(cache=True, parallel=True, fastmath=FASTMATH)
+def dfsph_source(kernel, periodic, divergence, prm, n, x, v, m, rho, nbr, counts, wgrad, inv_d, dt, lam_sum, lam):
+    """lambda of rows 0..n-1 (rows.dfsph_source_row); returns the sum of |s_i| / rho0 in units of
+    2^-32 (an integer: the same sum in any order, dfsph.quantized_error)."""
+    literally(kernel)
+    literally(periodic)
+    literally(divergence)
+    total = 0
+    for i in prange(n):
+        total += quantized_error(dfsph_source_row(kernel, periodic, divergence, prm, i, x, v, m, rho, nbr, counts,
+                                                  wgrad, inv_d, dt, lam_sum, lam))
+    return total
+
+
+@literal_dispatch(2)
+@njit(cache=True, parallel=True, fastmath=FASTMATH)
+def dfsph_update(kernel, periodic, prm, n, x, m, lam, nbr, counts, wgrad, inv_dt, v, lam_sum):
+    """Pressure velocity update of rows 0..n-1 (rows.dfsph_update_row)."""
+    literally(kernel)
+    literally(periodic)
+    for i in prange(n):
+        dfsph_update_row(kernel, periodic, prm, i, x, m, lam, nbr, counts, wgrad, inv_dt, v, lam_sum)
+
+
+@njit(cache=True, parallel=True)
+def dfsph_kick(n, v, a, dt, kappa, v_star, lam, lam_sum):
+    """v* = v + dt a and the warm-start lambda of rows 0..n-1 (rows.dfsph_kick_row)."""
+    for i in prange(n):
+        dfsph_kick_row(i, v, a, dt, kappa, v_star, lam, lam_sum)
+
+
+@njit(cache=True, parallel=True)
+def dfsph_finish(n, v, v_star, rho, lam_sum, inv_dt, a, p, kappa):
+    """a = (v* - v) / dt and the solved kappa, p of rows 0..n-1 (rows.dfsph_finish_row)."""
+    for i in prange(n):
+        dfsph_finish_row(i, v, v_star, rho, lam_sum, inv_dt, a, p, kappa)
 
 
 @literal_dispatch(2)
@@ -152,6 +206,8 @@ class CpuStages:
         pass
 
     def fetch(self, name):
+        if name == "v":
+            return self.sim.state.v
         return getattr(self.sim, "_" + name)
 
     def store(self, name, host):
@@ -171,6 +227,36 @@ class CpuStages:
         s, w_, g = sim.state, sim.walls, sim.grid
         compute_acceleration(int(sim.kernel), int(sim.viscosity), sim.periodic, prm, s.n_owned, s.x, s.v, s.m,
                              s.rho, s.p, g.nbr, g.counts, w_.kind, w_.data, w_.tables, sim._fill, s.a)
+
+    def dfsph_factor(self, prm):
+        sim = self.sim
+        s, w_, g = sim.state, sim.walls, sim.grid
+        dfsph_factor(int(sim.kernel), sim.periodic, prm, s.n_owned, s.x, s.m, s.rho, g.nbr, g.counts, w_.kind,
+                     w_.data, w_.tables, sim._fill, s.p, sim._wgrad, sim._inv_d, sim._lam_sum)
+
+    def dfsph_source(self, prm, divergence, dt):
+        sim = self.sim
+        s, g = sim.state, sim.grid
+        v = s.v if divergence else sim._v_star
+        return int(dfsph_source(int(sim.kernel), sim.periodic, int(divergence), prm, s.n_owned, s.x, v, s.m, s.rho,
+                                g.nbr, g.counts, sim._wgrad, sim._inv_d, dt, sim._lam_sum, sim._lam))
+
+    def dfsph_update(self, prm, divergence, inv_dt):
+        sim = self.sim
+        s, g = sim.state, sim.grid
+        v = s.v if divergence else sim._v_star
+        dfsph_update(int(sim.kernel), sim.periodic, prm, s.n_owned, s.x, s.m, sim._lam, g.nbr, g.counts, sim._wgrad,
+                     inv_dt, v, sim._lam_sum)
+
+    def dfsph_kick(self, dt):
+        sim = self.sim
+        s = sim.state
+        dfsph_kick(s.n_owned, s.v, s.a, dt, s.extra["kappa"], sim._v_star, sim._lam, sim._lam_sum)
+
+    def dfsph_finish(self, inv_dt):
+        sim = self.sim
+        s = sim.state
+        dfsph_finish(s.n_owned, s.v, sim._v_star, s.rho, sim._lam_sum, inv_dt, s.a, s.p, s.extra["kappa"])
 
     def surface_tension(self, prm):
         sim = self.sim

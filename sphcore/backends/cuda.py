@@ -33,6 +33,7 @@ from numba import cuda
 
 from sphcore import grid as grid_mod
 from sphcore.backends import BackendUnavailable, rows
+from sphcore.physics.dfsph import quantized_error
 
 SIMULATOR = bool(numba.config.ENABLE_CUDASIM)
 BLOCK = 128          # threads per block for row kernels
@@ -121,6 +122,83 @@ def acceleration_kernel(kernel, viscosity, periodic):
             row(kernel, viscosity, periodic, prm, i, x, v, m, rho, p, nbr, counts, wall_kind, wall_data,
                 wall_tables, fill, a)
     return acceleration
+
+
+@functools.cache
+def dfsph_factor_kernel(kernel, periodic):
+    row = _device(rows.dfsph_factor_row)
+
+    @cuda.jit
+    def dfsph_factor(prm, n, x, m, rho, nbr, counts, wall_kind, wall_data, wall_tables, fill, p, wgrad, inv_d,
+                     lam_sum):
+        i = cuda.grid(1)
+        if i < n:
+            row(kernel, periodic, prm, i, x, m, rho, nbr, counts, wall_kind, wall_data, wall_tables, fill, p, wgrad,
+                inv_d, lam_sum)
+    return dfsph_factor
+
+
+@functools.cache
+def dfsph_source_kernel(kernel, periodic, divergence):
+    row = _device(rows.dfsph_source_row)
+    quantize = _device(quantized_error)
+
+    @cuda.jit
+    def dfsph_source(prm, n, x, v, m, rho, nbr, counts, wgrad, inv_d, dt, lam_sum, lam, total):
+        """lambda of row i; total[0] += the block's sum of quantised errors (integers: any order)."""
+        s_err = cuda.shared.array(BLOCK, numba.int64)
+        t = cuda.threadIdx.x
+        i = cuda.grid(1)
+        s_err[t] = 0
+        if i < n:
+            s_err[t] = quantize(row(kernel, periodic, divergence, prm, i, x, v, m, rho, nbr, counts, wgrad, inv_d,
+                                    dt, lam_sum, lam))
+        cuda.syncthreads()
+        s = BLOCK // 2
+        while s > 0:
+            if t < s:
+                s_err[t] += s_err[t + s]
+            cuda.syncthreads()
+            s //= 2
+        if t == 0:
+            cuda.atomic.add(total, 0, s_err[0])
+    return dfsph_source
+
+
+@functools.cache
+def dfsph_update_kernel(kernel, periodic):
+    row = _device(rows.dfsph_update_row)
+
+    @cuda.jit
+    def dfsph_update(prm, n, x, m, lam, nbr, counts, wgrad, inv_dt, v, lam_sum):
+        i = cuda.grid(1)
+        if i < n:
+            row(kernel, periodic, prm, i, x, m, lam, nbr, counts, wgrad, inv_dt, v, lam_sum)
+    return dfsph_update
+
+
+@functools.cache
+def dfsph_kick_kernel():
+    row = _device(rows.dfsph_kick_row)
+
+    @cuda.jit
+    def dfsph_kick(n, v, a, dt, kappa, v_star, lam, lam_sum):
+        i = cuda.grid(1)
+        if i < n:
+            row(i, v, a, dt, kappa, v_star, lam, lam_sum)
+    return dfsph_kick
+
+
+@functools.cache
+def dfsph_finish_kernel():
+    row = _device(rows.dfsph_finish_row)
+
+    @cuda.jit
+    def dfsph_finish(n, v, v_star, rho, lam_sum, inv_dt, a, p, kappa):
+        i = cuda.grid(1)
+        if i < n:
+            row(i, v, v_star, rho, lam_sum, inv_dt, a, p, kappa)
+    return dfsph_finish
 
 
 @functools.cache
@@ -515,14 +593,18 @@ class DeviceState:
         self.n = 0
         self.n_owned = 0
         self.arrays = {}
+        self.extra_names = ()  # the state's extra arrays (carried with the particles)
         self._spare = {}
 
     def upload(self, state, names=FIELDS):
-        """Copy host ParticleState arrays to the device (all rows)."""
+        """Copy host ParticleState arrays to the device (all rows); a full upload takes the state's
+        extra arrays (DFSPH's kappa) too."""
         self.n = state.n
         self.n_owned = state.n_owned
-        for name in names:
-            host = np.ascontiguousarray(getattr(state, name))
+        if names is FIELDS:
+            self.extra_names = tuple(state.extra)
+        for name in names + (self.extra_names if names is FIELDS else ()):
+            host = np.ascontiguousarray(state.extra[name] if name in state.extra else getattr(state, name))
             dev = self.arrays.get(name)
             if dev is None or dev.shape != host.shape:
                 self.arrays[name] = cuda.to_device(host)
@@ -533,12 +615,16 @@ class DeviceState:
         """Copy device arrays into the host ParticleState (resized to the device's row count)."""
         for name in names:
             setattr(state, name, self.arrays[name][: self.n].copy_to_host())
+        if names is FIELDS:
+            for name in self.extra_names:
+                state.extra[name] = self.arrays[name][: self.n].copy_to_host()
         state.n_owned = self.n_owned
 
     def reorder(self, perm):
-        """Rows of the sorted fields gathered by ``perm`` (row k <- row perm[k]); double-buffered."""
+        """Rows of the sorted fields (and extra arrays) gathered by ``perm`` (row k <- row perm[k]);
+        double-buffered."""
         n = self.n
-        for name in SORTED:
+        for name in SORTED + self.extra_names:
             src = self.arrays[name]
             dst = self._spare.get(name)
             if dst is None or dst.shape != src.shape:
@@ -575,6 +661,7 @@ class CudaStages:
         self.lo = cuda.to_device(sim._lo)
         self.leak_count = cuda.device_array(1, dtype=np.int64)
         self.stats = cuda.device_array(4, dtype=np.float64)
+        self.error_sum = cuda.device_array(1, dtype=np.int64)
         self.scratch_n = -1
         self.device_stale = True   # the host state was replaced: upload before the next stage
         self.host_stale = False    # the device ran a stage since the last download
@@ -597,12 +684,15 @@ class CudaStages:
         """Upload host arrays changed in place (ghost rows of rho, p after exchange 2)."""
         self.d.upload(self.sim._state, names)
 
+    def _array(self, name):
+        return self.d.v if name == "v" else getattr(self, "d_" + name)
+
     def fetch(self, name):
-        """A host copy of a per-row scratch array (omega) for a halo exchange."""
-        return getattr(self, "d_" + name).copy_to_host()
+        """A host copy of a per-row array (omega, lam, v, v_star) for a halo exchange."""
+        return self._array(name).copy_to_host()
 
     def store(self, name, host):
-        getattr(self, "d_" + name).copy_to_device(host)
+        self._array(name).copy_to_device(host)
 
     def _scratch(self, n):
         if n == self.scratch_n:
@@ -613,6 +703,12 @@ class CudaStages:
         self.d_omega = cuda.device_array((n if sim.use_vorticity else 1, 3), dtype=dt)
         self.d_leaked = cuda.device_array(max(n, 1), dtype=np.int8)
         self.d_fill = cuda.device_array(max(n, 1), dtype=dt)
+        m = max(n, 1) if sim.dfsph else 1  # DFSPH scratch (Simulation._resize_scratch)
+        self.d_wgrad = cuda.device_array((m, 3), dtype=dt)
+        self.d_inv_d = cuda.device_array(m, dtype=dt)
+        self.d_lam = cuda.device_array(m, dtype=dt)
+        self.d_lam_sum = cuda.device_array(m, dtype=dt)
+        self.d_v_star = cuda.device_array((m, 3), dtype=dt)
         self.scratch_n = n
 
     def _begin(self):
@@ -644,6 +740,50 @@ class CudaStages:
             acceleration_kernel(int(sim.kernel), int(sim.viscosity), sim.periodic)[blocks(n), BLOCK](
                 prm, n, d.x, d.v, d.m, d.rho, d.p, g.d_nbr, g.d_counts, self.wall_kind, self.wall_data,
                 self.wall_tables, self.d_fill, d.a)
+        cuda.synchronize()
+
+    def dfsph_factor(self, prm):
+        self._begin()
+        sim, d, g = self.sim, self.d, self.grid
+        if d.n_owned:
+            dfsph_factor_kernel(int(sim.kernel), sim.periodic)[blocks(d.n_owned), BLOCK](
+                prm, d.n_owned, d.x, d.m, d.rho, g.d_nbr, g.d_counts, self.wall_kind, self.wall_data,
+                self.wall_tables, self.d_fill, d.p, self.d_wgrad, self.d_inv_d, self.d_lam_sum)
+        cuda.synchronize()
+
+    def dfsph_source(self, prm, divergence, dt):
+        self._begin()
+        sim, d, g = self.sim, self.d, self.grid
+        self.error_sum.copy_to_device(np.zeros(1, dtype=np.int64))
+        if d.n_owned:
+            dfsph_source_kernel(int(sim.kernel), sim.periodic, int(divergence))[blocks(d.n_owned), BLOCK](
+                prm, d.n_owned, d.x, d.v if divergence else self.d_v_star, d.m, d.rho, g.d_nbr, g.d_counts,
+                self.d_wgrad, self.d_inv_d, dt, self.d_lam_sum, self.d_lam, self.error_sum)
+        return int(self.error_sum.copy_to_host()[0])
+
+    def dfsph_update(self, prm, divergence, inv_dt):
+        self._begin()
+        sim, d, g = self.sim, self.d, self.grid
+        if d.n_owned:
+            dfsph_update_kernel(int(sim.kernel), sim.periodic)[blocks(d.n_owned), BLOCK](
+                prm, d.n_owned, d.x, d.m, self.d_lam, g.d_nbr, g.d_counts, self.d_wgrad, inv_dt,
+                d.v if divergence else self.d_v_star, self.d_lam_sum)
+        cuda.synchronize()
+
+    def dfsph_kick(self, dt):
+        self._begin()
+        d = self.d
+        if d.n_owned:
+            dfsph_kick_kernel()[blocks(d.n_owned), BLOCK](d.n_owned, d.v, d.a, dt, d.kappa, self.d_v_star,
+                                                          self.d_lam, self.d_lam_sum)
+        cuda.synchronize()
+
+    def dfsph_finish(self, inv_dt):
+        self._begin()
+        d = self.d
+        if d.n_owned:
+            dfsph_finish_kernel()[blocks(d.n_owned), BLOCK](d.n_owned, d.v, self.d_v_star, d.rho, self.d_lam_sum,
+                                                            inv_dt, d.a, d.p, d.kappa)
         cuda.synchronize()
 
     def surface_tension(self, prm):
@@ -725,7 +865,8 @@ def compile_all(kernel=0, eos=0, viscosity=1, periodic=0, integrator=0, dtype="f
                       clamp_negative=True, alpha=0.1, mu=0.0, gravity=(0.0, -9.81, 0.0), external=(0.0, 0.0, 0.0),
                       central_omega2=1.0, central=(0.0, 0.0, 0.0),
                       period=(0.0, 0.0, 0.0), xsph_eps=0.0, shift_a=1.0, sigma=0.0, st_threshold=0.0, vorticity_eps=0.0,
-                      restitution=0.0, friction=0.0, wall_gap=0.0, dx=0.5, inv_s=1.0, dim3=True, wall_table_end=1.0)
+                      restitution=0.0, friction=0.0, wall_gap=0.0, dx=0.5, inv_s=1.0, dim3=True, wall_table_end=1.0,
+                      dfsph_d0=1.0)
     P = numba.typeof(prm)
     v1, v2 = types.Array(f, 1, "C"), types.Array(f, 2, "C")
     i1, i8, i8v = types.Array(types.int32, 1, "C"), types.Array(types.int8, 1, "C"), types.Array(types.int64, 1, "C")
@@ -743,6 +884,11 @@ def compile_all(kernel=0, eos=0, viscosity=1, periodic=0, integrator=0, dtype="f
         "xsph": (xsph_kernel(kernel, periodic), (P, n, v2, v2, v1, v1, nbr, i1, v2)),
         "shifting": (shifting_kernel(kernel, periodic, 1), (P, n, v2, v2, v1, v1, nbr, i1, wk, wd, v2)),
         "integrate": (integrate_kernel(integrator, 1), (n, v2, v2, v2, v2, f, f)),
+        "dfsph_factor": (dfsph_factor_kernel(kernel, periodic), (P, n, v2, v1, v1, nbr, i1, wk, wd, wd, v1, v1, v2, v1, v1)),
+        "dfsph_source": (dfsph_source_kernel(kernel, periodic, 0), (P, n, v2, v2, v1, v1, nbr, i1, v2, v1, f, v1, v1, i8v)),
+        "dfsph_update": (dfsph_update_kernel(kernel, periodic), (P, n, v2, v1, v1, nbr, i1, v2, f, v2, v1)),
+        "dfsph_kick": (dfsph_kick_kernel(), (n, v2, v2, f, v1, v2, v1, v1)),
+        "dfsph_finish": (dfsph_finish_kernel(), (n, v2, v2, v1, v1, f, v2, v1, v1)),
         "boundaries": (boundaries_kernel(periodic), (P, n, v2, v2, v1, wk, wd, i8, i8v)),
         "statistics": (statistics_kernel(), (n, v2, v2, v2, v1, f, types.Array(types.float64, 1, "C"))),
         "cell_keys": (cell_keys, (v2, n, n, v1, v1, i8v, i8v, i8v)),

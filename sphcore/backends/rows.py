@@ -17,6 +17,7 @@ from numba import njit
 
 from sphcore.grid import minimum_image
 from sphcore.physics.density import density_pair
+from sphcore.physics.dfsph import RELAXATION, density_rate_pair, increment, inverse_diagonal, source
 from sphcore.physics.eos import pressure
 from sphcore.physics.external import body_acceleration, central_acceleration
 from sphcore.physics.kernels import dw_dr_over_r, lap_w_viscosity, w
@@ -119,6 +120,111 @@ def acceleration_row(kernel, viscosity, periodic, prm, i, x, v, m, rho, p, nbr, 
     a[i, 0] = ax
     a[i, 1] = ay
     a[i, 2] = az
+
+
+@njit(cache=True, inline="always")
+def dfsph_factor_row(kernel, periodic, prm, i, x, m, rho, nbr, counts, wall_kind, wall_data, wall_tables, fill, p,
+                     wgrad, inv_d, lam_sum):
+    """DFSPH set-up of row i at the step's positions: the wall gradient g_i^wall, 1 / D_i, and p_i = 0
+    (the forces stage then gives the non-pressure accelerations).   (dfsph.py)"""
+    gx = 0.0 * prm.H
+    gy = 0.0 * prm.H
+    gz = 0.0 * prm.H
+    sum_sq = 0.0 * prm.H
+    for k in range(counts[i]):
+        j = nbr[i, k]
+        dx, dy, dz = separation(periodic, x, i, j, prm)
+        r2 = dx * dx + dy * dy + dz * dz
+        if r2 == 0.0:
+            continue
+        g = m[j] * dw_dr_over_r(kernel, math.sqrt(r2), prm.H, prm.s_g)
+        gx += g * dx
+        gy += g * dy
+        gz += g * dz
+        sum_sq += g * g * r2
+    # the walls' pressure push at p_i = rho_i^2 / 2 without body force is -sum_virtual m grad W
+    rho_i = rho[i]
+    _, fx, fy, fz = wall_terms(kernel, prm, True, wall_kind, wall_data, wall_tables, x[i, 0], x[i, 1], x[i, 2],
+                               0.5 * rho_i * rho_i, rho_i, 0.0 * rho_i, 0.0 * rho_i, 0.0 * rho_i)
+    wx = -fill[i] * fx
+    wy = -fill[i] * fy
+    wz = -fill[i] * fz
+    wgrad[i, 0] = wx
+    wgrad[i, 1] = wy
+    wgrad[i, 2] = wz
+    inv_d[i] = inverse_diagonal(gx, gy, gz, wx, wy, wz, sum_sq, prm.dfsph_d0)
+    p[i] = 0.0 * rho_i
+    lam_sum[i] = 0.0 * rho_i  # the divergence solve starts from zero
+
+
+@njit(cache=True, inline="always")
+def dfsph_source_row(kernel, periodic, divergence, prm, i, x, v, m, rho, nbr, counts, wgrad, inv_d, dt, lam_sum, lam):
+    """This iteration's lambda_i = s_i / D_i from the velocities v, projected so that the solve's sum
+    stays >= 0 with free surfaces (dfsph.py); returns the density error it removes, |lambda_i| D_i / rho0
+    (0 for a particle without neighbours: nothing to solve there)."""
+    rate = wgrad[i, 0] * v[i, 0] + wgrad[i, 1] * v[i, 1] + wgrad[i, 2] * v[i, 2]
+    for k in range(counts[i]):
+        j = nbr[i, k]
+        dx, dy, dz = separation(periodic, x, i, j, prm)
+        r2 = dx * dx + dy * dy + dz * dz
+        if r2 == 0.0:
+            continue
+        g = dw_dr_over_r(kernel, math.sqrt(r2), prm.H, prm.s_g)
+        rate += density_rate_pair(m[j], v[i, 0] - v[j, 0], v[i, 1] - v[j, 1], v[i, 2] - v[j, 2],
+                                  g * dx, g * dy, g * dz)
+    s = source(divergence, rho[i], prm.rho0, rate, dt)
+    inv = inv_d[i]
+    if counts[i] == 0:  # alone: no neighbour to push, nothing to solve
+        lam[i] = 0.0 * s
+        return 0.0 * s
+    dl = increment(prm.clamp_negative, RELAXATION * s * inv, lam_sum[i])  # inv = 1 / max(D_i, d0)
+    lam[i] = dl
+    return abs(dl) / inv / prm.rho0
+
+
+@njit(cache=True, inline="always")
+def dfsph_update_row(kernel, periodic, prm, i, x, m, lam, nbr, counts, wgrad, inv_dt, v, lam_sum):
+    """v_i -= (1/dt) [sum_j m_j (lambda_i + lambda_j) grad W_ij + lambda_i g_i^wall];
+    lam_sum_i += lambda_i.   (dfsph.py)"""
+    l_i = lam[i]
+    sx = l_i * wgrad[i, 0]
+    sy = l_i * wgrad[i, 1]
+    sz = l_i * wgrad[i, 2]
+    for k in range(counts[i]):
+        j = nbr[i, k]
+        dx, dy, dz = separation(periodic, x, i, j, prm)
+        r2 = dx * dx + dy * dy + dz * dz
+        if r2 == 0.0:
+            continue
+        g = m[j] * (l_i + lam[j]) * dw_dr_over_r(kernel, math.sqrt(r2), prm.H, prm.s_g)
+        sx += g * dx
+        sy += g * dy
+        sz += g * dz
+    v[i, 0] -= inv_dt * sx
+    v[i, 1] -= inv_dt * sy
+    v[i, 2] -= inv_dt * sz
+    lam_sum[i] += l_i
+
+
+@njit(cache=True, inline="always")
+def dfsph_kick_row(i, v, a, dt, kappa, v_star, lam, lam_sum):
+    """v*_i = v_i + dt a_i (non-pressure accelerations); the density solve's warm start is the
+    previous step's pressure, lambda_i = kappa_i dt^2 (applied by one update before iterating)."""
+    for c in range(3):
+        v_star[i, c] = v[i, c] + dt * a[i, c]
+    lam[i] = kappa[i] * dt * dt
+    lam_sum[i] = 0.0 * dt
+
+
+@njit(cache=True, inline="always")
+def dfsph_finish_row(i, v, v_star, rho, lam_sum, inv_dt, a, p, kappa):
+    """a_i = (v*_i - v_i) / dt, so that the integrator's kick lands on v*; kappa_i = sum lambda / dt^2
+    (the next step's warm start), p_i = rho_i^2 kappa_i."""
+    for c in range(3):
+        a[i, c] = (v_star[i, c] - v[i, c]) * inv_dt
+    k = lam_sum[i] * inv_dt * inv_dt
+    kappa[i] = k
+    p[i] = rho[i] * rho[i] * k
 
 
 @njit(cache=True, inline="always")
