@@ -216,6 +216,10 @@ def make_summary(sim: Simulation, scene: Scene, loop: dict, t_setup: float, wall
                     "note": "first_step_s includes numba compilation, or loading it from the on-disk cache"},
         "stages": stages,
         "dt": {"last": sim.dt, "binding_limit_steps": limits},
+        "solver": {"name": scene.sph.solver, **({
+            name: {"mean_iterations": st["iterations"] / max(st["steps"], 1), "max_iterations": st["max"],
+                   "unconverged_steps": st["unconverged"], "last_mean_error": st["last_error"]}
+            for name, st in sim.solver_stats.items()} if sim.dfsph else {})},
         "neighbours": {"mean": float(counts.mean()) if counts.size else 0.0,
                        "max": int(counts.max()) if counts.size else 0, "max_over_run": sim.max_neighbours},
         "leaks": sim.leaks,

@@ -78,6 +78,10 @@ class _Clock:
         sim = self.sim
         self.opts.stats.update(particles=sim.n_particles, steps=sim.step_index - self.steps0,
                                sim_time=sim.t - self.time0, wall_s=wall)
+        if sim.dfsph:  # iterations per step of the incompressible solver's two solves
+            for name, st in sim.solver_stats.items():
+                self.opts.stats[f"{name}_iterations"] = st["iterations"] / max(st["steps"], 1)
+                self.opts.stats[f"{name}_unconverged"] = st["unconverged"]
 
 
 def _plot():

@@ -130,6 +130,7 @@ class Simulation:
         self.step_index = 0
         self.dt_prev = 0.0  # leapfrog: the previous step, for the combined kick
         self.dt = 0.0
+        self.dt_flow = 0.0
         self.leaks = 0
         self.max_neighbours = 0
         self.max_compression = 0.0
@@ -242,7 +243,7 @@ class Simulation:
                 e.dfsph_factor(prm)                                # x, m, rho        -> 1/D, g^wall; p = 0
         yield from self._exchange_fields(halo)                     # ghosts' rho, p   (exchange 2)
         if self.use_divergence_solve:                              # v                -> v (div-free)
-            yield from self._pressure_solve(halo, prm, True, self.dt_prev or self.scene.time.dt)
+            yield from self._pressure_solve(halo, prm, True, self.dt_flow or self.scene.time.dt)
         with t("forces"):
             e.forces(prm)                                          # x, v, rho, p     -> a
         if self.use_surface_tension:
@@ -270,9 +271,10 @@ class Simulation:
         if self.dfsph:
             with t("dfsph_kick"):
                 e.dfsph_kick(self.dtype.type(dt))                  # v, a (non-pressure) -> v*
-            yield from self._pressure_solve(halo, prm, False, dt)  # v*               -> v* (rho* = rho0)
+            yield from self._pressure_solve(halo, prm, False, dt,  # v*               -> v* (rho* = rho0)
+                                            share=min(dt / self.dt_flow, 1.0) ** 2)
             with t("dfsph_kick"):
-                e.dfsph_finish(self.dtype.type(1.0 / dt))          # v*, lambda       -> a, p
+                e.dfsph_finish(self.dtype.type(1.0 / dt), dt >= self.dt_flow)  # v*, lambda -> a, kappa, p
         with t("integrate"):                                       # a                -> v, x; walls, periodic
             self.leaks += e.integrate(prm, self.dtype.type(dt), self.dtype.type(self.dt_prev))
         self.dt_prev = dt
@@ -280,7 +282,7 @@ class Simulation:
         self.t += dt
         self.step_index += 1
 
-    def _pressure_solve(self, halo, prm, divergence, dt, record=True):
+    def _pressure_solve(self, halo, prm, divergence, dt, record=True, share=1.0):
         """DFSPH's iterative solve (physics/dfsph.py): the divergence solver on v, or the density
         solver on v*. Each iteration: lambda from the velocities, the global mean error, and unless
         converged the pressure velocity update; ghosts' lambda and velocities follow every update."""
@@ -299,7 +301,7 @@ class Simulation:
         it = 0
         while True:
             with t(stage):
-                err = e.dfsph_source(prm, divergence, dt_)
+                err = e.dfsph_source(prm, divergence, dt_, self.dtype.type(share))
             err = yield from halo.reduce_sum(self, f"{name}_err{it}", err)
             mean = err / ERROR_QUANTUM / max(self.n_particles, 1)
             if (mean <= tolerance and it >= MIN_ITERATIONS) or it >= sph.max_iterations:
@@ -352,6 +354,11 @@ class Simulation:
                 self._fail(f"CFL violation: time.dt = {dt:.3g} s exceeds the {name} stability limit "
                            f"{bound:.3g} s (CFL {CFL_LIMIT:g}); use a smaller time.dt or time.mode = 'adaptive'",
                            rows="fastest")
+        if self.dfsph and dt < 1.0e-6 * tm.dt:
+            # without a speed of sound nothing else stops a run whose velocities blow up: the CFL step collapses
+            self._fail(f"time step collapsed to {dt:.3g} s (time.dt = {tm.dt:g} s; max |v| = {math.sqrt(vmax2):.3g} "
+                       "m/s): energy blow-up; tighten sph.density_tolerance or lower time.cfl", rows="fastest")
+        self.dt_flow = dt  # the step the flow allows, before an output time shortens it
         if dt_cap is not None and dt_cap < dt:
             dt, limit = dt_cap, "until"
         self.limit_counts[limit] += 1
@@ -396,10 +403,10 @@ class Simulation:
         yield from self._exchange_fields(halo)
         e.forces(prm)
         if self.dfsph:  # the pressure the next step would solve for (p = 0 otherwise)
-            dt = self.dt or self.scene.time.dt
+            dt = self.dt_flow or self.scene.time.dt  # a full step, not a shortened last one
             e.dfsph_kick(self.dtype.type(dt))
             yield from self._pressure_solve(halo, prm, False, dt, record=False)
-            e.dfsph_finish(self.dtype.type(1.0 / dt))
+            e.dfsph_finish(self.dtype.type(1.0 / dt), True)
 
     def _exchange_fields(self, halo):
         """Exchange 2; a device takes the ghosts' rho, p the halo wrote into the host mirror."""

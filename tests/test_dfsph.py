@@ -27,13 +27,13 @@ def test_diagonal_is_the_response_of_a_particle_to_its_own_pressure():
     k = int(np.argmin(np.abs(s.x[:n, 0] - 0.25) + np.abs(s.x[:n, 1] - 0.25)))  # mid-tank
     sim._v_star[:] = 0.0
     sim._lam_sum[:] = 0.0
-    e.dfsph_source(prm, False, dt)
+    e.dfsph_source(prm, False, dt, np.float64(1.0))
     before = sim._lam[k]
     sim._lam[:] = 0.0
     sim._lam[k] = 1e-6
     e.dfsph_update(prm, False, np.float64(1.0 / dt))
     sim._lam_sum[:] = 0.0
-    e.dfsph_source(prm, False, dt)
+    e.dfsph_source(prm, False, dt, np.float64(1.0))
     # When the predicted density error is measured again
     from sphcore.physics.dfsph import RELAXATION
     change = (sim._lam[k] - before) / sim._inv_d[k] / RELAXATION

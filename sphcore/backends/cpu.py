@@ -64,7 +64,8 @@ def dfsph_factor(kernel, periodic, prm, n, x, m, rho, nbr, counts, wall_kind, wa
 
 @literal_dispatch(3)
 @njit(cache=True, parallel=True, fastmath=FASTMATH)
-def dfsph_source(kernel, periodic, divergence, prm, n, x, v, m, rho, nbr, counts, wgrad, inv_d, dt, lam_sum, lam):
+def dfsph_source(kernel, periodic, divergence, prm, n, x, v, m, rho, nbr, counts, wgrad, inv_d, dt, share, lam_sum,
+                 lam):
     """lambda of rows 0..n-1 (rows.dfsph_source_row); returns the sum of |s_i| / rho0 in units of
     2^-32 (an integer: the same sum in any order, dfsph.quantized_error)."""
     literally(kernel)
@@ -73,7 +74,7 @@ def dfsph_source(kernel, periodic, divergence, prm, n, x, v, m, rho, nbr, counts
     total = 0
     for i in prange(n):
         total += quantized_error(dfsph_source_row(kernel, periodic, divergence, prm, i, x, v, m, rho, nbr, counts,
-                                                  wgrad, inv_d, dt, lam_sum, lam))
+                                                  wgrad, inv_d, dt, share, lam_sum, lam))
     return total
 
 
@@ -95,10 +96,10 @@ def dfsph_kick(n, v, a, dt, kappa, v_star, lam, lam_sum):
 
 
 @njit(cache=True, parallel=True)
-def dfsph_finish(n, v, v_star, rho, lam_sum, inv_dt, a, p, kappa):
-    """a = (v* - v) / dt and the solved kappa, p of rows 0..n-1 (rows.dfsph_finish_row)."""
+def dfsph_finish(n, v, v_star, rho, lam_sum, inv_dt, store, a, p, kappa):
+    """a = (v* - v) / dt and (if store) the solved kappa, p of rows 0..n-1 (rows.dfsph_finish_row)."""
     for i in prange(n):
-        dfsph_finish_row(i, v, v_star, rho, lam_sum, inv_dt, a, p, kappa)
+        dfsph_finish_row(i, v, v_star, rho, lam_sum, inv_dt, store, a, p, kappa)
 
 
 @literal_dispatch(2)
@@ -234,12 +235,12 @@ class CpuStages:
         dfsph_factor(int(sim.kernel), sim.periodic, prm, s.n_owned, s.x, s.m, s.rho, g.nbr, g.counts, w_.kind,
                      w_.data, w_.tables, sim._fill, s.p, sim._wgrad, sim._inv_d, sim._lam_sum)
 
-    def dfsph_source(self, prm, divergence, dt):
+    def dfsph_source(self, prm, divergence, dt, share):
         sim = self.sim
         s, g = sim.state, sim.grid
         v = s.v if divergence else sim._v_star
         return int(dfsph_source(int(sim.kernel), sim.periodic, int(divergence), prm, s.n_owned, s.x, v, s.m, s.rho,
-                                g.nbr, g.counts, sim._wgrad, sim._inv_d, dt, sim._lam_sum, sim._lam))
+                                g.nbr, g.counts, sim._wgrad, sim._inv_d, dt, share, sim._lam_sum, sim._lam))
 
     def dfsph_update(self, prm, divergence, inv_dt):
         sim = self.sim
@@ -253,10 +254,10 @@ class CpuStages:
         s = sim.state
         dfsph_kick(s.n_owned, s.v, s.a, dt, s.extra["kappa"], sim._v_star, sim._lam, sim._lam_sum)
 
-    def dfsph_finish(self, inv_dt):
+    def dfsph_finish(self, inv_dt, store):
         sim = self.sim
         s = sim.state
-        dfsph_finish(s.n_owned, s.v, sim._v_star, s.rho, sim._lam_sum, inv_dt, s.a, s.p, s.extra["kappa"])
+        dfsph_finish(s.n_owned, s.v, sim._v_star, s.rho, sim._lam_sum, inv_dt, bool(store), s.a, s.p, s.extra["kappa"])
 
     def surface_tension(self, prm):
         sim = self.sim

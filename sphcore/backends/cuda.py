@@ -144,7 +144,7 @@ def dfsph_source_kernel(kernel, periodic, divergence):
     quantize = _device(quantized_error)
 
     @cuda.jit
-    def dfsph_source(prm, n, x, v, m, rho, nbr, counts, wgrad, inv_d, dt, lam_sum, lam, total):
+    def dfsph_source(prm, n, x, v, m, rho, nbr, counts, wgrad, inv_d, dt, share, lam_sum, lam, total):
         """lambda of row i; total[0] += the block's sum of quantised errors (integers: any order)."""
         s_err = cuda.shared.array(BLOCK, numba.int64)
         t = cuda.threadIdx.x
@@ -152,7 +152,7 @@ def dfsph_source_kernel(kernel, periodic, divergence):
         s_err[t] = 0
         if i < n:
             s_err[t] = quantize(row(kernel, periodic, divergence, prm, i, x, v, m, rho, nbr, counts, wgrad, inv_d,
-                                    dt, lam_sum, lam))
+                                    dt, share, lam_sum, lam))
         cuda.syncthreads()
         s = BLOCK // 2
         while s > 0:
@@ -194,10 +194,10 @@ def dfsph_finish_kernel():
     row = _device(rows.dfsph_finish_row)
 
     @cuda.jit
-    def dfsph_finish(n, v, v_star, rho, lam_sum, inv_dt, a, p, kappa):
+    def dfsph_finish(n, v, v_star, rho, lam_sum, inv_dt, store, a, p, kappa):
         i = cuda.grid(1)
         if i < n:
-            row(i, v, v_star, rho, lam_sum, inv_dt, a, p, kappa)
+            row(i, v, v_star, rho, lam_sum, inv_dt, store, a, p, kappa)
     return dfsph_finish
 
 
@@ -751,14 +751,14 @@ class CudaStages:
                 self.wall_tables, self.d_fill, d.p, self.d_wgrad, self.d_inv_d, self.d_lam_sum)
         cuda.synchronize()
 
-    def dfsph_source(self, prm, divergence, dt):
+    def dfsph_source(self, prm, divergence, dt, share):
         self._begin()
         sim, d, g = self.sim, self.d, self.grid
         self.error_sum.copy_to_device(np.zeros(1, dtype=np.int64))
         if d.n_owned:
             dfsph_source_kernel(int(sim.kernel), sim.periodic, int(divergence))[blocks(d.n_owned), BLOCK](
                 prm, d.n_owned, d.x, d.v if divergence else self.d_v_star, d.m, d.rho, g.d_nbr, g.d_counts,
-                self.d_wgrad, self.d_inv_d, dt, self.d_lam_sum, self.d_lam, self.error_sum)
+                self.d_wgrad, self.d_inv_d, dt, share, self.d_lam_sum, self.d_lam, self.error_sum)
         return int(self.error_sum.copy_to_host()[0])
 
     def dfsph_update(self, prm, divergence, inv_dt):
@@ -778,12 +778,12 @@ class CudaStages:
                                                           self.d_lam, self.d_lam_sum)
         cuda.synchronize()
 
-    def dfsph_finish(self, inv_dt):
+    def dfsph_finish(self, inv_dt, store):
         self._begin()
         d = self.d
         if d.n_owned:
             dfsph_finish_kernel()[blocks(d.n_owned), BLOCK](d.n_owned, d.v, self.d_v_star, d.rho, self.d_lam_sum,
-                                                            inv_dt, d.a, d.p, d.kappa)
+                                                            inv_dt, bool(store), d.a, d.p, d.kappa)
         cuda.synchronize()
 
     def surface_tension(self, prm):
@@ -885,10 +885,10 @@ def compile_all(kernel=0, eos=0, viscosity=1, periodic=0, integrator=0, dtype="f
         "shifting": (shifting_kernel(kernel, periodic, 1), (P, n, v2, v2, v1, v1, nbr, i1, wk, wd, v2)),
         "integrate": (integrate_kernel(integrator, 1), (n, v2, v2, v2, v2, f, f)),
         "dfsph_factor": (dfsph_factor_kernel(kernel, periodic), (P, n, v2, v1, v1, nbr, i1, wk, wd, wd, v1, v1, v2, v1, v1)),
-        "dfsph_source": (dfsph_source_kernel(kernel, periodic, 0), (P, n, v2, v2, v1, v1, nbr, i1, v2, v1, f, v1, v1, i8v)),
+        "dfsph_source": (dfsph_source_kernel(kernel, periodic, 0), (P, n, v2, v2, v1, v1, nbr, i1, v2, v1, f, f, v1, v1, i8v)),
         "dfsph_update": (dfsph_update_kernel(kernel, periodic), (P, n, v2, v1, v1, nbr, i1, v2, f, v2, v1)),
         "dfsph_kick": (dfsph_kick_kernel(), (n, v2, v2, f, v1, v2, v1, v1)),
-        "dfsph_finish": (dfsph_finish_kernel(), (n, v2, v2, v1, v1, f, v2, v1, v1)),
+        "dfsph_finish": (dfsph_finish_kernel(), (n, v2, v2, v1, v1, f, types.boolean, v2, v1, v1)),
         "boundaries": (boundaries_kernel(periodic), (P, n, v2, v2, v1, wk, wd, i8, i8v)),
         "statistics": (statistics_kernel(), (n, v2, v2, v2, v1, f, types.Array(types.float64, 1, "C"))),
         "cell_keys": (cell_keys, (v2, n, n, v1, v1, i8v, i8v, i8v)),

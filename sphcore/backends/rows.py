@@ -158,7 +158,8 @@ def dfsph_factor_row(kernel, periodic, prm, i, x, m, rho, nbr, counts, wall_kind
 
 
 @njit(cache=True, inline="always")
-def dfsph_source_row(kernel, periodic, divergence, prm, i, x, v, m, rho, nbr, counts, wgrad, inv_d, dt, lam_sum, lam):
+def dfsph_source_row(kernel, periodic, divergence, prm, i, x, v, m, rho, nbr, counts, wgrad, inv_d, dt, share, lam_sum,
+                     lam):
     """This iteration's lambda_i = s_i / D_i from the velocities v, projected so that the solve's sum
     stays >= 0 with free surfaces (dfsph.py); returns the density error it removes, |lambda_i| D_i / rho0
     (0 for a particle without neighbours: nothing to solve there)."""
@@ -172,7 +173,7 @@ def dfsph_source_row(kernel, periodic, divergence, prm, i, x, v, m, rho, nbr, co
         g = dw_dr_over_r(kernel, math.sqrt(r2), prm.H, prm.s_g)
         rate += density_rate_pair(m[j], v[i, 0] - v[j, 0], v[i, 1] - v[j, 1], v[i, 2] - v[j, 2],
                                   g * dx, g * dy, g * dz)
-    s = source(divergence, rho[i], prm.rho0, rate, dt)
+    s = source(divergence, rho[i], prm.rho0, rate, dt, share)
     inv = inv_d[i]
     if counts[i] == 0:  # alone: no neighbour to push, nothing to solve
         lam[i] = 0.0 * s
@@ -217,14 +218,17 @@ def dfsph_kick_row(i, v, a, dt, kappa, v_star, lam, lam_sum):
 
 
 @njit(cache=True, inline="always")
-def dfsph_finish_row(i, v, v_star, rho, lam_sum, inv_dt, a, p, kappa):
-    """a_i = (v*_i - v_i) / dt, so that the integrator's kick lands on v*; kappa_i = sum lambda / dt^2
-    (the next step's warm start), p_i = rho_i^2 kappa_i."""
+def dfsph_finish_row(i, v, v_star, rho, lam_sum, inv_dt, store, a, p, kappa):
+    """a_i = (v*_i - v_i) / dt, so that the integrator's kick lands on v*; if ``store``: kappa_i =
+    sum lambda / dt^2 (the next step's warm start), p_i = rho_i^2 kappa_i. A step shortened to land on
+    an output time does not store: its lambda also removes the velocity field's residual divergence,
+    which does not shrink with dt, so sum lambda / dt^2 would be a meaningless, huge pressure."""
     for c in range(3):
         a[i, c] = (v_star[i, c] - v[i, c]) * inv_dt
-    k = lam_sum[i] * inv_dt * inv_dt
-    kappa[i] = k
-    p[i] = rho[i] * rho[i] * k
+    if store:
+        k = lam_sum[i] * inv_dt * inv_dt
+        kappa[i] = k
+        p[i] = rho[i] * rho[i] * k
 
 
 @njit(cache=True, inline="always")

@@ -80,11 +80,14 @@ def density_rate_pair(m_j, dvx, dvy, dvz, gx, gy, gz):
 
 
 @njit(cache=True, inline="always")
-def source(divergence, rho_i, rho0, rate, dt):
-    """s_i: the density error the solver removes (module docstring)."""
+def source(divergence, rho_i, rho0, rate, dt, share):
+    """s_i: the density error the solver removes (module docstring). ``share`` = (dt / dt_flow)^2 < 1
+    on a step shortened to land on an output time: a pressure acceleration moves a particle by ~dt^2,
+    so a short step corrects that share of the present compression, not all of it with a velocity
+    ~ (rho - rho0) / dt (which would also leave kappa = sum lambda / dt^2 huge for the next step)."""
     if divergence:
         return dt * rate
-    return rho_i + dt * rate - rho0
+    return share * (rho_i - rho0) + dt * rate
 
 
 @njit(cache=True, inline="always")
