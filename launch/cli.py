@@ -215,9 +215,9 @@ def build_parser() -> argparse.ArgumentParser:
                           help="run the cases on the CPU or on a GPU (float64 either way)")
 
     study = sub.add_parser(
-        "study", help="measure error and cost of every accuracy knob (kernel, resolution, precision, CFL)",
-        description="Run the validation cases over kernel x resolution, then precision and CFL at every "
-                    "resolution, and time each optional term; write OUT/study.json, OUT/pareto.png (error "
+        "study", help="measure error and cost of every accuracy knob (solver, kernel, resolution, precision, CFL)",
+        description="Run the validation cases over kernel x resolution, then precision, CFL and solver (DFSPH "
+                    "at density tolerances 1e-3 and 1e-4) at every resolution, and time each optional term; write OUT/study.json, OUT/pareto.png (error "
                     "against wall seconds per simulated second) and OUT/study.md (tables, cheapest setting per "
                     "error budget). Takes about half an hour on 2 cores; --quick: a few minutes.")
     study.add_argument("cases", nargs="*", metavar="CASE", help="oscillating_drop, dam_break, taylor_green "

@@ -1,17 +1,14 @@
 """``sph study``: what each accuracy knob costs and what it buys, measured in one run.
 
 For each validation case (``launch/validate.py``) the study runs a baseline and varies one knob at a
-time around it — kernel family x resolution as a grid, then precision and CFL number at every
-resolution — and records the case's error and the wall time of the stepping loop. The time is
+time around it — kernel family x resolution as a grid, then precision, CFL number and solver (the
+incompressible DFSPH at one or two density tolerances) at every resolution — and records the case's error and the wall time of the stepping loop. The time is
 reported per simulated second (what a user pays for a given physical duration) and as
 particle-steps/s. It also times each optional term on a 3D dam break against the same run without
 it. Results go to OUT/study.json, OUT/pareto.png (error against cost; the Pareto front of each case
 drawn through its best points) and OUT/study.md (tables and the cheapest setting per error budget);
 ``--docs`` also updates docs/ACCURACY.md between its ``study`` markers and copies the plot to
 docs/img/.
-
-The solver axis has one value today (WCSPH); the study lists it so that an incompressible solver
-lands in the same tables.
 """
 from __future__ import annotations
 
@@ -40,26 +37,38 @@ CASES = {
     "taylor_green": (taylor_green, ("taylor_green.speed_l1_relative",), (0.02, 0.01), ("time.dt=0.1",)),
 }
 KERNELS = ("wendland_c2", "cubic_spline", "muller")
-BASE = {"solver": "wcsph", "kernel": "wendland_c2", "precision": "f64", "cfl": 0.25}
+BASE = {"solver": "wcsph", "kernel": "wendland_c2", "precision": "f64", "cfl": 0.25, "tolerance": None}
+# DFSPH's density tolerances (sph.density_tolerance); the step is its own CFL step on the flow speed
+DFSPH_TOLERANCES = (1e-3, 1e-4)
 BUDGETS = (0.01, 0.02, 0.05, 0.10, 0.20)
 
 
 def plan(case: str, quick: bool) -> list[dict]:
-    """The configurations of one case: kernel x resolution at the baseline, then precision and CFL
-    at every resolution for the baseline kernel. ``quick``: the coarsest resolution only, kernels and
-    one CFL variation (for tests)."""
+    """The configurations of one case: kernel x resolution at the baseline, then precision, CFL and
+    the DFSPH solver at every resolution for the baseline kernel. ``quick``: the coarsest resolution
+    only, kernels, one CFL variation and one DFSPH tolerance (for tests)."""
     dxs = CASES[case][2][:1] if quick else CASES[case][2]
     configs = [dict(BASE, kernel=k, dx=dx) for dx in dxs for k in KERNELS]
     configs += [dict(BASE, precision="f32", dx=dx) for dx in dxs]
     cfls = (0.4,) if quick else (0.1, 0.4)
     configs += [dict(BASE, cfl=c, dx=dx) for dx in dxs for c in cfls]
+    tolerances = DFSPH_TOLERANCES[:1] if quick else DFSPH_TOLERANCES
+    configs += [dict(BASE, solver="dfsph", tolerance=tol, dx=dx) for dx in dxs for tol in tolerances]
     return configs
+
+
+def overrides(cfg: dict) -> tuple:
+    """The --set strings of one configuration. DFSPH runs with the symplectic Euler step (the scenes
+    that use leapfrog are switched: DFSPH's step is a kick-solve-drift)."""
+    out = (f"sph.kernel='{cfg['kernel']}'", f"time.cfl={cfg['cfl']}", f"sph.solver='{cfg['solver']}'")
+    if cfg["solver"] == "dfsph":
+        out += (f"sph.density_tolerance={cfg['tolerance']}", "time.integrator='symplectic_euler'")
+    return out
 
 
 def run_config(case: str, cfg: dict) -> dict:
     fn, metric_names, _, extra = CASES[case]
-    opts = CaseOptions(precision=cfg["precision"], dx=cfg["dx"], plot=False,
-                       overrides=(f"sph.kernel='{cfg['kernel']}'", f"time.cfl={cfg['cfl']}", *extra))
+    opts = CaseOptions(precision=cfg["precision"], dx=cfg["dx"], plot=False, overrides=(*overrides(cfg), *extra))
     t0 = time.perf_counter()
     try:
         metrics = {m.name: float(m.value) for m in fn(True, Path("."), opts=opts)}
@@ -74,6 +83,8 @@ def run_config(case: str, cfg: dict) -> dict:
                 steps=st.get("steps"), wall_s=wall, sim_time=sim_time,
                 wall_per_sim_s=wall / sim_time if sim_time and sim_time > 0 else float("nan"),
                 particle_steps_per_s=(st["particles"] * st["steps"] / wall) if st.get("steps") and wall > 0 else None,
+                iterations=(st["density_iterations"], st.get("divergence_iterations", 0.0))
+                if "density_iterations" in st else None,
                 total_s=time.perf_counter() - t0)
 
 
@@ -120,7 +131,8 @@ def pareto(points: list[tuple[float, float]]) -> list[int]:
 
 
 def _label(r: dict) -> str:
-    return f"{r['kernel']}, dx={r['dx']:g}, {r['precision']}, CFL {r['cfl']:g}"
+    solver = f"DFSPH tol {r['tolerance']:g}" if r["solver"] == "dfsph" else "WCSPH"
+    return f"{solver}, {r['kernel']}, dx={r['dx']:g}, {r['precision']}, CFL {r['cfl']:g}"
 
 
 def plot(results: list[dict], path: Path):
@@ -133,8 +145,8 @@ def plot(results: list[dict], path: Path):
     for ax, case in zip(axes[0], cases):
         rs = [r for r in results if r["case"] == case and r["outcome"] == "ok"]
         for r in rs:
-            colour = "tab:orange" if r["precision"] == "f32" else ("tab:green" if r["cfl"] != BASE["cfl"] else
-                                                                   "tab:blue")
+            colour = ("tab:red" if r["solver"] == "dfsph" else "tab:orange" if r["precision"] == "f32" else
+                      "tab:green" if r["cfl"] != BASE["cfl"] else "tab:blue")
             ax.loglog(r["wall_per_sim_s"], r["error"], markers[r["kernel"]], color=colour, mfc="none", ms=7)
             ax.annotate(f"{r['dx']:g}", (r["wall_per_sim_s"], r["error"]), fontsize=7, xytext=(3, 3),
                         textcoords="offset points")
@@ -148,7 +160,8 @@ def plot(results: list[dict], path: Path):
     from matplotlib.lines import Line2D
     handles = [Line2D([], [], marker=m, ls="", mfc="none", color="k", label=k) for k, m in markers.items()]
     handles += [Line2D([], [], marker="o", ls="", color=c, label=t) for c, t in
-                (("tab:blue", "f64, CFL 0.25"), ("tab:orange", "float32"), ("tab:green", "CFL 0.1 / 0.4"))]
+                (("tab:blue", "f64, CFL 0.25"), ("tab:orange", "float32"), ("tab:green", "CFL 0.1 / 0.4"),
+                 ("tab:red", "DFSPH"))]
     handles.append(Line2D([], [], color="k", label="Pareto front"))
     axes[0][-1].legend(handles=handles, fontsize=7, loc="upper right")
     fig.suptitle("Error against cost (numbers: spacing dx in m)")
@@ -163,15 +176,18 @@ def report_markdown(results: list[dict], terms: list[dict], meta: dict, image: s
     for case in dict.fromkeys(r["case"] for r in results):
         rs = [r for r in results if r["case"] == case]
         lines += [f"### {case}", "", "| solver | kernel | dx (m) | precision | CFL | particles | error | "
-                  "wall s per sim s | work (1e6 particle-steps per sim s) | particle-steps/s | outcome |",
-                  "|---|---|---:|---|---:|---:|---:|---:|---:|---:|---|"]
+                  "wall s per sim s | work (1e6 particle-steps per sim s) | particle-steps/s | "
+                  "iterations/step (density, divergence) | outcome |",
+                  "|---|---|---:|---|---:|---:|---:|---:|---:|---:|---|---|"]
         for r in rs:
             pss = f"{r['particle_steps_per_s']:.3g}" if r["particle_steps_per_s"] else "-"
             work = (f"{r['particles'] * r['steps'] / r['sim_time'] / 1e6:.3g}"
                     if r.get("steps") and r.get("sim_time") else "-")
-            lines.append(f"| {r['solver']} | {r['kernel']} | {r['dx']:g} | {r['precision']} | {r['cfl']:g} | "
+            solver = f"dfsph (tol {r['tolerance']:g})" if r["solver"] == "dfsph" else r["solver"]
+            its = f"{r['iterations'][0]:.1f}, {r['iterations'][1]:.1f}" if r.get("iterations") else "-"
+            lines.append(f"| {solver} | {r['kernel']} | {r['dx']:g} | {r['precision']} | {r['cfl']:g} | "
                          f"{r['particles'] or '-'} | {r['error']:.3g} | {r['wall_per_sim_s']:.3g} | {work} | {pss} | "
-                         f"{r['outcome'][:60]} |")
+                         f"{its} | {r['outcome'][:60]} |")
         ok = [r for r in rs if r["outcome"] == "ok" and np.isfinite(r["error"])]
         lines += ["", "Cheapest setting for an error budget:", ""]
         for budget in BUDGETS:

@@ -47,6 +47,7 @@ class Params(NamedTuple):
     dim3: bool          # True for 3D scenes
     wall_table_end: float  # wall tables span d in [0, wall_table_end] (m), boundaries.table_end
     dfsph_d0: float     # DFSPH diagonal of a full neighbourhood (boundaries.lattice_pressure_diagonal; kg^2/m^8 in 3D)
+    dfsph_omega: float  # DFSPH Jacobi relaxation (physics/dfsph.relaxation)
 
 
 def make_params(dtype, **values) -> Params:

@@ -14,13 +14,13 @@ import numpy as np
 
 from sphcore import grid as grid_mod
 from sphcore.backends import cpu
-from sphcore.boundaries import (build_walls, lattice_gradient_moment, lattice_pressure_diagonal, lattice_sum,
-                                table_end)
+from sphcore.boundaries import (build_walls, lattice_gradient_moment, lattice_jacobi_ratio, lattice_pressure_diagonal,
+                                lattice_sum, table_end)
 from sphcore.choices import EOSES, INTEGRATORS, KERNELS, VISCOSITIES, Integrator, Viscosity
 from sphcore.halo import NULL_HALO
 from sphcore.initial import generate_particles
 from sphcore.params import make_params
-from sphcore.physics.dfsph import ERROR_QUANTUM, MIN_ITERATIONS
+from sphcore.physics.dfsph import ERROR_QUANTUM, MIN_ITERATIONS, reference_density, relaxation
 from sphcore.physics.external import ramp_factor
 from sphcore.physics.kernels import kernel_constants, w
 from sphcore.scene import Scene
@@ -97,6 +97,7 @@ class Simulation:
         self.periodic = int(self.grid.periodic)
         nu = sph.nu if self.viscosity in (Viscosity.MULLER, Viscosity.MORRIS) else 0.0
         self.nu = nu
+        dfsph = sph.solver == "dfsph"
         self.prm = make_params(
             dtype, H=self.H, h=self.h, s_w=s_w, s_g=s_g, s_l=s_l, w0=w(int(self.kernel), 0.0, self.H, s_w),
             rho0=rho0, c0=sph.sound_speed, clamp_negative=bool(sph.clamp_negative_pressure), alpha=sph.alpha,
@@ -108,7 +109,8 @@ class Simulation:
             restitution=scene.boundary.restitution, friction=scene.boundary.friction,
             wall_gap=scene.boundary.gap * dx, dx=dx, inv_s=1.0 / S, dim3=scene.dim == 3,
             wall_table_end=table_end(self.H, dx),
-            dfsph_d0=lattice_pressure_diagonal(self.kernel, scene.dim, self.H, dx, rho0) if sph.solver == "dfsph" else 1.0,
+            dfsph_d0=lattice_pressure_diagonal(self.kernel, scene.dim, self.H, dx, rho0) if dfsph else 1.0,
+            dfsph_omega=relaxation(lattice_jacobi_ratio(self.kernel, scene.dim, self.H, dx)) if dfsph else 0.5,
         )
         self.use_xsph = scene.terms.xsph > 0.0
         self.use_shifting = scene.terms.shifting > 0.0
@@ -131,6 +133,7 @@ class Simulation:
         self.dt_prev = 0.0  # leapfrog: the previous step, for the combined kick
         self.dt = 0.0
         self.dt_flow = 0.0
+        self.rho_ref = scene.fluid.rest_density  # the density solve's target (_reference_density)
         self.leaks = 0
         self.max_neighbours = 0
         self.max_compression = 0.0
@@ -240,7 +243,8 @@ class Simulation:
             e.density(prm)                                         # x, m             -> rho, p
         if self.dfsph:
             with t("dfsph_factor"):
-                e.dfsph_factor(prm)                                # x, m, rho        -> 1/D, g^wall; p = 0
+                offset = e.dfsph_factor(prm)                       # x, m, rho        -> 1/D, g^wall; p = 0
+            yield from self._reference_density(halo, offset)      # closed flows: the mean density
         yield from self._exchange_fields(halo)                     # ghosts' rho, p   (exchange 2)
         if self.use_divergence_solve:                              # v                -> v (div-free)
             yield from self._pressure_solve(halo, prm, True, self.dt_flow or self.scene.time.dt)
@@ -301,7 +305,7 @@ class Simulation:
         it = 0
         while True:
             with t(stage):
-                err = e.dfsph_source(prm, divergence, dt_, self.dtype.type(share))
+                err = e.dfsph_source(prm, divergence, dt_, self.dtype.type(share), self.dtype.type(self.rho_ref))
             err = yield from halo.reduce_sum(self, f"{name}_err{it}", err)
             mean = err / ERROR_QUANTUM / max(self.n_particles, 1)
             if (mean <= tolerance and it >= MIN_ITERATIONS) or it >= sph.max_iterations:
@@ -320,6 +324,16 @@ class Simulation:
         st["unconverged"] += int(mean > tolerance)
         st["last"] = it
         st["last_error"] = mean
+
+    def _reference_density(self, halo, offset):
+        """rho_ref of the density solve: rho0 with free surfaces, the mean density of a closed flow
+        (``sph.clamp_negative_pressure`` false; physics/dfsph.reference_density)."""
+        rho0 = self.scene.fluid.rest_density
+        if self.scene.sph.clamp_negative_pressure:
+            self.rho_ref = rho0
+            return
+        total = yield from halo.reduce_sum(self, "rho_offset", offset)
+        self.rho_ref = reference_density(rho0, total, self.n_particles)
 
     def _exchange_rows(self, halo, phase, name):
         """Ghost rows of a per-row array (lam, v, v*) from their owners; nothing for one process."""
@@ -345,11 +359,13 @@ class Simulation:
             self._fail(f"flow speed reached the speed of sound (max |v| = {math.sqrt(vmax2):.3g} m/s >= "
                        f"sph.sound_speed = {c0:g} m/s): energy blow-up; raise sph.sound_speed or shorten the "
                        "time step", rows="fastest")
-        dt, limit = choose_dt(tm.mode, tm.dt, tm.cfl, self.h, c0, math.sqrt(vmax2), math.sqrt(amax2), self.nu)
+        shift_a = self.scene.terms.shifting
+        dt, limit = choose_dt(tm.mode, tm.dt, tm.cfl, self.h, c0, math.sqrt(vmax2), math.sqrt(amax2), self.nu,
+                              shift_a)
         if tm.mode == "fixed":
             # the explicit scheme's stability limit is CFL ~ 1; a fixed step beyond it diverges
             bound, name = choose_dt("adaptive", math.inf, CFL_LIMIT, self.h, c0, math.sqrt(vmax2),
-                                    math.sqrt(amax2), self.nu)
+                                    math.sqrt(amax2), self.nu, shift_a)
             if dt > bound:
                 self._fail(f"CFL violation: time.dt = {dt:.3g} s exceeds the {name} stability limit "
                            f"{bound:.3g} s (CFL {CFL_LIMIT:g}); use a smaller time.dt or time.mode = 'adaptive'",
@@ -399,7 +415,7 @@ class Simulation:
         self._neighbours()
         e.density(prm)
         if self.dfsph:
-            e.dfsph_factor(prm)
+            yield from self._reference_density(halo, e.dfsph_factor(prm))
         yield from self._exchange_fields(halo)
         e.forces(prm)
         if self.dfsph:  # the pressure the next step would solve for (p = 0 otherwise)

@@ -5,6 +5,13 @@ Monaghan 1992 (section 10) and Morris et al. 1997 (eqs. 29-30), with h = H/2 the
     acoustic  dt_c = cfl * h / (c0 + max|v|)
     force     dt_f = cfl * sqrt(h / max|a|)
     viscous   dt_v = cfl * 0.5 * h^2 / nu        (physical viscosity models only)
+    shifting  dt_s = cfl * h / (A max|v|)        (particle shifting only)
+
+The shifting limit: Fickian shifting (physics/shifting.py) moves particles with the drift velocity
+-A h |v| grad C, a diffusion of the particle concentration with diffusivity ~A h |v|. Like any
+explicit diffusion it is stable only while A |v| dt / h stays small; with a speed of sound in the
+acoustic limit WCSPH never gets there, but DFSPH's flow-speed step does: the Taylor-Green vortex
+with A = 8 blew up at DFSPH's step (A |v| dt / h = 2) and ran at A = 1 (0.25).
 
 The adaptive step is the smallest of these and the scene's ``time.dt`` (the largest allowed step);
 the name of the binding limit is reported so users see what limits their run. An incompressible
@@ -13,11 +20,11 @@ condition dt = cfl * h / max|v|.
 """
 import math
 
-LIMITS = ("acoustic", "force", "viscous", "max", "fixed", "until")
+LIMITS = ("acoustic", "force", "viscous", "shifting", "max", "fixed", "until")
 
 
 def choose_dt(mode: str, dt: float, cfl: float, h: float, c0: float, vmax: float, amax: float,
-              nu: float) -> tuple[float, str]:
+              nu: float, shift_a: float = 0.0) -> tuple[float, str]:
     """(dt, name of the binding limit) for mode 'fixed' or 'adaptive'."""
     if mode == "fixed":
         return dt, "fixed"
@@ -33,4 +40,8 @@ def choose_dt(mode: str, dt: float, cfl: float, h: float, c0: float, vmax: float
         viscous = cfl * 0.5 * h * h / nu
         if viscous < best:
             best, name = viscous, "viscous"
+    if shift_a > 0.0 and vmax > 0.0:
+        shifting = cfl * h / (shift_a * vmax)
+        if shifting < best:
+            best, name = shifting, "shifting"
     return best, name

@@ -6,7 +6,7 @@ import pytest
 from nodes.cluster import InProcessCluster
 from sphcore import checkpoint
 from sphcore.scene import SceneError
-from sphcore.solver import Simulation
+from sphcore.solver import Simulation, SimulationError
 
 from conftest import scene
 
@@ -27,16 +27,15 @@ def test_diagonal_is_the_response_of_a_particle_to_its_own_pressure():
     k = int(np.argmin(np.abs(s.x[:n, 0] - 0.25) + np.abs(s.x[:n, 1] - 0.25)))  # mid-tank
     sim._v_star[:] = 0.0
     sim._lam_sum[:] = 0.0
-    e.dfsph_source(prm, False, dt, np.float64(1.0))
+    e.dfsph_source(prm, False, dt, np.float64(1.0), np.float64(1000.0))
     before = sim._lam[k]
     sim._lam[:] = 0.0
     sim._lam[k] = 1e-6
     e.dfsph_update(prm, False, np.float64(1.0 / dt))
     sim._lam_sum[:] = 0.0
-    e.dfsph_source(prm, False, dt, np.float64(1.0))
+    e.dfsph_source(prm, False, dt, np.float64(1.0), np.float64(1000.0))
     # When the predicted density error is measured again
-    from sphcore.physics.dfsph import RELAXATION
-    change = (sim._lam[k] - before) / sim._inv_d[k] / RELAXATION
+    change = (sim._lam[k] - before) / sim._inv_d[k] / prm.dfsph_omega
     # Then it fell by exactly lambda D (the Jacobi diagonal of a full neighbourhood)
     assert change == pytest.approx(-1e-6 / sim._inv_d[k], rel=1e-9)
 
@@ -121,3 +120,61 @@ def test_kappa_survives_a_checkpoint(tmp_path):
 def test_dfsph_with_leapfrog_is_refused():
     with pytest.raises(SceneError, match="time.integrator"):
         scene("hydrostatic_2d", "time.integrator='leapfrog'", *DFSPH)
+
+
+def test_jacobi_ratio_of_the_lattice_operator_grows_with_the_support():
+    from sphcore.boundaries import lattice_jacobi_ratio
+    from sphcore.choices import Kernel
+    from sphcore.physics.dfsph import relaxation
+    # Given the Wendland C2 kernel on a lattice of spacing 0.01 m at 2.3 and 4 spacings of support
+    ratios = {(dim, sup): lattice_jacobi_ratio(Kernel.WENDLAND_C2, dim, sup * 0.01, 0.01)
+              for dim in (2, 3) for sup in (2.3, 4.0)}
+    # Then lambda_max exceeds the diagonal (its mean over k) and more so with more neighbours
+    assert 1.0 < ratios[2, 2.3] < ratios[2, 4.0] and ratios[3, 2.3] < ratios[3, 4.0]
+    assert ratios[2, 2.3] == pytest.approx(2.27, abs=0.01) and ratios[2, 4.0] == pytest.approx(5.67, abs=0.02)
+    # And the relaxation keeps omega lambda_max at 1 (stable below 2), never above IISPH's 0.5
+    for r in ratios.values():
+        assert relaxation(r) * r <= 1.0 + 1e-12 and relaxation(r) <= 0.5
+    # And it does not depend on the spacing at a fixed support ratio
+    assert lattice_jacobi_ratio(Kernel.WENDLAND_C2, 2, 0.4, 0.1) == pytest.approx(ratios[2, 4.0], rel=1e-9)
+
+
+def _periodic_vortex_speeds(omega=None, steps=12):
+    """max |v| over the first steps of a DFSPH Taylor-Green vortex at 4 spacings of support."""
+    sim = Simulation(scene("taylor_green_2d", "particles.spacing=0.05", "time.dt=0.1", "terms.shifting=0",
+                           "time.integrator='symplectic_euler'", *DFSPH), "f64")
+    if omega is not None:
+        sim.prm = sim.prm._replace(dfsph_omega=np.float64(omega))
+    speeds = []
+    for _ in range(steps):
+        sim.step()
+        speeds.append(float(np.max(np.linalg.norm(sim.state.v[:sim.state.n_owned], axis=1))))
+    return sim, speeds
+
+
+def test_relaxation_from_the_lattice_ratio_keeps_a_wide_kernel_stable():
+    # Given a periodic vortex (U = 1 m/s) with a support of 4 spacings: lambda_max / D = 5.7
+    sim, speeds = _periodic_vortex_speeds()
+    # Then with omega = 1 / 5.7 the speed stays near U
+    assert sim.prm.dfsph_omega == pytest.approx(1.0 / 5.67, rel=0.01)
+    assert max(speeds) < 1.05
+    # While the fixed omega = 0.5 used before (omega lambda_max = 2.8 > 2) makes the iteration diverge
+    try:
+        _, fast = _periodic_vortex_speeds(omega=0.5)
+        diverged = max(fast) > 2.0
+    except SimulationError:  # the run stopped with its blow-up diagnostic
+        diverged = True
+    assert diverged
+
+
+def test_closed_flow_solves_against_its_mean_density():
+    # Given a periodic vortex (no free surface: negative pressure kept) after some steps
+    sim, _ = _periodic_vortex_speeds(steps=5)
+    n = sim.state.n_owned
+    # Then the density solve's target is the mean summation density, not rho0
+    assert sim.rho_ref == pytest.approx(float(np.mean(sim.state.rho[:n])), rel=1e-9)
+    assert sim.rho_ref != 1000.0
+    # And with a free surface it is rho0
+    tank = Simulation(scene("hydrostatic_2d", "particles.spacing=0.05", *DFSPH), "f64")
+    tank.step()
+    assert tank.rho_ref == 1000.0

@@ -75,3 +75,16 @@ def test_off_means_not_in_the_step():
     on = Simulation(_periodic_box(["terms.shifting=1.0"]), "f64")
     on.step()
     assert "shifting" in on.timers.summary()
+
+
+def test_shifting_limits_the_time_step_like_a_diffusion():
+    from sphcore.timestep import choose_dt
+    h, cfl = 0.02, 0.25
+    # Without a speed of sound (DFSPH) the flow-speed step is cfl h / |v| ...
+    assert choose_dt("adaptive", 1.0, cfl, h, 0.0, 1.0, 0.0, 0.0) == (cfl * h / 1.0, "acoustic")
+    # ... and shifting with A = 8 (drift -A h |v| grad C, diffusivity ~A h |v|) cuts it 8-fold
+    assert choose_dt("adaptive", 1.0, cfl, h, 0.0, 1.0, 0.0, 0.0, 8.0) == (cfl * h / 8.0, "shifting")
+    # With WCSPH's speed of sound (c0 = 10 U) the acoustic limit stays the smaller one at A = 8
+    assert choose_dt("adaptive", 1.0, cfl, h, 10.0, 1.0, 0.0, 0.0, 8.0)[1] == "acoustic"
+    # A fluid at rest has no shifting limit
+    assert choose_dt("adaptive", 1.0, cfl, h, 0.0, 0.0, 0.0, 0.0, 8.0) == (1.0, "max")

@@ -14,7 +14,7 @@ from sphcore.backends.rows import (acceleration_row, boundaries_row, confinement
                                    dfsph_finish_row, dfsph_kick_row, dfsph_source_row, dfsph_update_row,
                                    integrate_row, shifting_row, statistics_row, surface_tension_row, vorticity_row,
                                    xsph_row)
-from sphcore.physics.dfsph import quantized_error
+from sphcore.physics.dfsph import quantized_error, quantized_offset
 
 # Floating-point licences for the neighbour passes: reassociation (the sums over neighbours become
 # partial sums LLVM can schedule; 25-30 % faster forces), contraction into FMA, reciprocals and
@@ -54,18 +54,22 @@ def compute_acceleration(kernel, viscosity, periodic, prm, n, x, v, m, rho, p, n
 @njit(cache=True, parallel=True, fastmath=FASTMATH)
 def dfsph_factor(kernel, periodic, prm, n, x, m, rho, nbr, counts, wall_kind, wall_data, wall_tables, fill, p, wgrad,
                  inv_d, lam_sum):
-    """DFSPH wall gradient, 1 / D, p = 0 and lam_sum = 0 of rows 0..n-1 (rows.dfsph_factor_row)."""
+    """DFSPH wall gradient, 1 / D, p = 0 and lam_sum = 0 of rows 0..n-1 (rows.dfsph_factor_row); returns
+    the sum of rho_i / rho0 - 1 in units of 2^-32 (dfsph.quantized_offset: the mean density)."""
     literally(kernel)
     literally(periodic)
+    total = 0
     for i in prange(n):
         dfsph_factor_row(kernel, periodic, prm, i, x, m, rho, nbr, counts, wall_kind, wall_data, wall_tables, fill,
                          p, wgrad, inv_d, lam_sum)
+        total += quantized_offset(rho[i], prm.rho0)
+    return total
 
 
 @literal_dispatch(3)
 @njit(cache=True, parallel=True, fastmath=FASTMATH)
-def dfsph_source(kernel, periodic, divergence, prm, n, x, v, m, rho, nbr, counts, wgrad, inv_d, dt, share, lam_sum,
-                 lam):
+def dfsph_source(kernel, periodic, divergence, prm, n, x, v, m, rho, nbr, counts, wgrad, inv_d, dt, share, rho_ref,
+                 lam_sum, lam):
     """lambda of rows 0..n-1 (rows.dfsph_source_row); returns the sum of |s_i| / rho0 in units of
     2^-32 (an integer: the same sum in any order, dfsph.quantized_error)."""
     literally(kernel)
@@ -74,7 +78,7 @@ def dfsph_source(kernel, periodic, divergence, prm, n, x, v, m, rho, nbr, counts
     total = 0
     for i in prange(n):
         total += quantized_error(dfsph_source_row(kernel, periodic, divergence, prm, i, x, v, m, rho, nbr, counts,
-                                                  wgrad, inv_d, dt, share, lam_sum, lam))
+                                                  wgrad, inv_d, dt, share, rho_ref, lam_sum, lam))
     return total
 
 
@@ -232,15 +236,15 @@ class CpuStages:
     def dfsph_factor(self, prm):
         sim = self.sim
         s, w_, g = sim.state, sim.walls, sim.grid
-        dfsph_factor(int(sim.kernel), sim.periodic, prm, s.n_owned, s.x, s.m, s.rho, g.nbr, g.counts, w_.kind,
-                     w_.data, w_.tables, sim._fill, s.p, sim._wgrad, sim._inv_d, sim._lam_sum)
+        return int(dfsph_factor(int(sim.kernel), sim.periodic, prm, s.n_owned, s.x, s.m, s.rho, g.nbr, g.counts,
+                                w_.kind, w_.data, w_.tables, sim._fill, s.p, sim._wgrad, sim._inv_d, sim._lam_sum))
 
-    def dfsph_source(self, prm, divergence, dt, share):
+    def dfsph_source(self, prm, divergence, dt, share, rho_ref):
         sim = self.sim
         s, g = sim.state, sim.grid
         v = s.v if divergence else sim._v_star
         return int(dfsph_source(int(sim.kernel), sim.periodic, int(divergence), prm, s.n_owned, s.x, v, s.m, s.rho,
-                                g.nbr, g.counts, sim._wgrad, sim._inv_d, dt, share, sim._lam_sum, sim._lam))
+                                g.nbr, g.counts, sim._wgrad, sim._inv_d, dt, share, rho_ref, sim._lam_sum, sim._lam))
 
     def dfsph_update(self, prm, divergence, inv_dt):
         sim = self.sim

@@ -33,7 +33,7 @@ from numba import cuda
 
 from sphcore import grid as grid_mod
 from sphcore.backends import BackendUnavailable, rows
-from sphcore.physics.dfsph import quantized_error
+from sphcore.physics.dfsph import quantized_error, quantized_offset
 
 SIMULATOR = bool(numba.config.ENABLE_CUDASIM)
 BLOCK = 128          # threads per block for row kernels
@@ -124,17 +124,38 @@ def acceleration_kernel(kernel, viscosity, periodic):
     return acceleration
 
 
+@cuda.jit(device=True)
+def _block_sum(s_sum, t, total):
+    """total[0] += the sum of the block's integers s_sum (shared memory; integers: any order)."""
+    cuda.syncthreads()
+    s = BLOCK // 2
+    while s > 0:
+        if t < s:
+            s_sum[t] += s_sum[t + s]
+        cuda.syncthreads()
+        s //= 2
+    if t == 0:
+        cuda.atomic.add(total, 0, s_sum[0])
+
+
 @functools.cache
 def dfsph_factor_kernel(kernel, periodic):
     row = _device(rows.dfsph_factor_row)
+    quantize = _device(quantized_offset)
 
     @cuda.jit
     def dfsph_factor(prm, n, x, m, rho, nbr, counts, wall_kind, wall_data, wall_tables, fill, p, wgrad, inv_d,
-                     lam_sum):
+                     lam_sum, total):
+        """Row i's set-up; total[0] += the block's sum of quantised density offsets."""
+        s_sum = cuda.shared.array(BLOCK, numba.int64)
+        t = cuda.threadIdx.x
         i = cuda.grid(1)
+        s_sum[t] = 0
         if i < n:
             row(kernel, periodic, prm, i, x, m, rho, nbr, counts, wall_kind, wall_data, wall_tables, fill, p, wgrad,
                 inv_d, lam_sum)
+            s_sum[t] = quantize(rho[i], prm.rho0)
+        _block_sum(s_sum, t, total)
     return dfsph_factor
 
 
@@ -144,7 +165,7 @@ def dfsph_source_kernel(kernel, periodic, divergence):
     quantize = _device(quantized_error)
 
     @cuda.jit
-    def dfsph_source(prm, n, x, v, m, rho, nbr, counts, wgrad, inv_d, dt, share, lam_sum, lam, total):
+    def dfsph_source(prm, n, x, v, m, rho, nbr, counts, wgrad, inv_d, dt, share, rho_ref, lam_sum, lam, total):
         """lambda of row i; total[0] += the block's sum of quantised errors (integers: any order)."""
         s_err = cuda.shared.array(BLOCK, numba.int64)
         t = cuda.threadIdx.x
@@ -152,16 +173,8 @@ def dfsph_source_kernel(kernel, periodic, divergence):
         s_err[t] = 0
         if i < n:
             s_err[t] = quantize(row(kernel, periodic, divergence, prm, i, x, v, m, rho, nbr, counts, wgrad, inv_d,
-                                    dt, share, lam_sum, lam))
-        cuda.syncthreads()
-        s = BLOCK // 2
-        while s > 0:
-            if t < s:
-                s_err[t] += s_err[t + s]
-            cuda.syncthreads()
-            s //= 2
-        if t == 0:
-            cuda.atomic.add(total, 0, s_err[0])
+                                    dt, share, rho_ref, lam_sum, lam))
+        _block_sum(s_err, t, total)
     return dfsph_source
 
 
@@ -745,20 +758,21 @@ class CudaStages:
     def dfsph_factor(self, prm):
         self._begin()
         sim, d, g = self.sim, self.d, self.grid
+        self.error_sum.copy_to_device(np.zeros(1, dtype=np.int64))
         if d.n_owned:
             dfsph_factor_kernel(int(sim.kernel), sim.periodic)[blocks(d.n_owned), BLOCK](
                 prm, d.n_owned, d.x, d.m, d.rho, g.d_nbr, g.d_counts, self.wall_kind, self.wall_data,
-                self.wall_tables, self.d_fill, d.p, self.d_wgrad, self.d_inv_d, self.d_lam_sum)
-        cuda.synchronize()
+                self.wall_tables, self.d_fill, d.p, self.d_wgrad, self.d_inv_d, self.d_lam_sum, self.error_sum)
+        return int(self.error_sum.copy_to_host()[0])
 
-    def dfsph_source(self, prm, divergence, dt, share):
+    def dfsph_source(self, prm, divergence, dt, share, rho_ref):
         self._begin()
         sim, d, g = self.sim, self.d, self.grid
         self.error_sum.copy_to_device(np.zeros(1, dtype=np.int64))
         if d.n_owned:
             dfsph_source_kernel(int(sim.kernel), sim.periodic, int(divergence))[blocks(d.n_owned), BLOCK](
                 prm, d.n_owned, d.x, d.v if divergence else self.d_v_star, d.m, d.rho, g.d_nbr, g.d_counts,
-                self.d_wgrad, self.d_inv_d, dt, share, self.d_lam_sum, self.d_lam, self.error_sum)
+                self.d_wgrad, self.d_inv_d, dt, share, rho_ref, self.d_lam_sum, self.d_lam, self.error_sum)
         return int(self.error_sum.copy_to_host()[0])
 
     def dfsph_update(self, prm, divergence, inv_dt):
@@ -866,7 +880,7 @@ def compile_all(kernel=0, eos=0, viscosity=1, periodic=0, integrator=0, dtype="f
                       central_omega2=1.0, central=(0.0, 0.0, 0.0),
                       period=(0.0, 0.0, 0.0), xsph_eps=0.0, shift_a=1.0, sigma=0.0, st_threshold=0.0, vorticity_eps=0.0,
                       restitution=0.0, friction=0.0, wall_gap=0.0, dx=0.5, inv_s=1.0, dim3=True, wall_table_end=1.0,
-                      dfsph_d0=1.0)
+                      dfsph_d0=1.0, dfsph_omega=0.5)
     P = numba.typeof(prm)
     v1, v2 = types.Array(f, 1, "C"), types.Array(f, 2, "C")
     i1, i8, i8v = types.Array(types.int32, 1, "C"), types.Array(types.int8, 1, "C"), types.Array(types.int64, 1, "C")
@@ -884,8 +898,10 @@ def compile_all(kernel=0, eos=0, viscosity=1, periodic=0, integrator=0, dtype="f
         "xsph": (xsph_kernel(kernel, periodic), (P, n, v2, v2, v1, v1, nbr, i1, v2)),
         "shifting": (shifting_kernel(kernel, periodic, 1), (P, n, v2, v2, v1, v1, nbr, i1, wk, wd, v2)),
         "integrate": (integrate_kernel(integrator, 1), (n, v2, v2, v2, v2, f, f)),
-        "dfsph_factor": (dfsph_factor_kernel(kernel, periodic), (P, n, v2, v1, v1, nbr, i1, wk, wd, wd, v1, v1, v2, v1, v1)),
-        "dfsph_source": (dfsph_source_kernel(kernel, periodic, 0), (P, n, v2, v2, v1, v1, nbr, i1, v2, v1, f, f, v1, v1, i8v)),
+        "dfsph_factor": (dfsph_factor_kernel(kernel, periodic),
+                         (P, n, v2, v1, v1, nbr, i1, wk, wd, wd, v1, v1, v2, v1, v1, i8v)),
+        "dfsph_source": (dfsph_source_kernel(kernel, periodic, 0),
+                         (P, n, v2, v2, v1, v1, nbr, i1, v2, v1, f, f, f, v1, v1, i8v)),
         "dfsph_update": (dfsph_update_kernel(kernel, periodic), (P, n, v2, v1, v1, nbr, i1, v2, f, v2, v1)),
         "dfsph_kick": (dfsph_kick_kernel(), (n, v2, v2, f, v1, v2, v1, v1)),
         "dfsph_finish": (dfsph_finish_kernel(), (n, v2, v2, v1, v1, f, types.boolean, v2, v1, v1)),

@@ -17,7 +17,7 @@ from numba import njit
 
 from sphcore.grid import minimum_image
 from sphcore.physics.density import density_pair
-from sphcore.physics.dfsph import RELAXATION, density_rate_pair, increment, inverse_diagonal, source
+from sphcore.physics.dfsph import density_rate_pair, increment, inverse_diagonal, source
 from sphcore.physics.eos import pressure
 from sphcore.physics.external import body_acceleration, central_acceleration
 from sphcore.physics.kernels import dw_dr_over_r, lap_w_viscosity, w
@@ -158,8 +158,8 @@ def dfsph_factor_row(kernel, periodic, prm, i, x, m, rho, nbr, counts, wall_kind
 
 
 @njit(cache=True, inline="always")
-def dfsph_source_row(kernel, periodic, divergence, prm, i, x, v, m, rho, nbr, counts, wgrad, inv_d, dt, share, lam_sum,
-                     lam):
+def dfsph_source_row(kernel, periodic, divergence, prm, i, x, v, m, rho, nbr, counts, wgrad, inv_d, dt, share,
+                     rho_ref, lam_sum, lam):
     """This iteration's lambda_i = s_i / D_i from the velocities v, projected so that the solve's sum
     stays >= 0 with free surfaces (dfsph.py); returns the density error it removes, |lambda_i| D_i / rho0
     (0 for a particle without neighbours: nothing to solve there)."""
@@ -173,12 +173,12 @@ def dfsph_source_row(kernel, periodic, divergence, prm, i, x, v, m, rho, nbr, co
         g = dw_dr_over_r(kernel, math.sqrt(r2), prm.H, prm.s_g)
         rate += density_rate_pair(m[j], v[i, 0] - v[j, 0], v[i, 1] - v[j, 1], v[i, 2] - v[j, 2],
                                   g * dx, g * dy, g * dz)
-    s = source(divergence, rho[i], prm.rho0, rate, dt, share)
+    s = source(divergence, rho[i], rho_ref, rate, dt, share)
     inv = inv_d[i]
     if counts[i] == 0:  # alone: no neighbour to push, nothing to solve
         lam[i] = 0.0 * s
         return 0.0 * s
-    dl = increment(prm.clamp_negative, RELAXATION * s * inv, lam_sum[i])  # inv = 1 / max(D_i, d0)
+    dl = increment(prm.clamp_negative, prm.dfsph_omega * s * inv, lam_sum[i])  # inv = 1 / max(D_i, d0)
     lam[i] = dl
     return abs(dl) / inv / prm.rho0
 

@@ -26,12 +26,13 @@ causes at i is -lambda_i D_i with
 (B&K's factor alpha_i = rho_i / D_i, with the wall term added), so each iteration sets
 
     lambda_i = omega s_i / max(D_i, d0),
-        s_i = rho_i + dt D rho_i/Dt (v*) - rho0     (density solver: rho* -> rho0)
+        s_i = rho_i + dt D rho_i/Dt (v*) - rho0     (density solver: rho* -> rho0; closed flows:
+                                                    the mean density, see reference_density)
         s_i = dt D rho_i/Dt (v)                      (divergence solver: D rho/Dt -> 0)
 
-(omega = RELAXATION, d0 the full-neighbourhood D: see the constants below) and applies dv to every particle; the two solvers iterate until the mean density error that an
-iteration removes, |lambda_i| D_i / rho0, over all particles falls below their tolerance. With free
-surfaces (``sph.clamp_negative_pressure``) the sum of a particle's lambda over the solve is kept
+(omega = prm.dfsph_omega, d0 the full-neighbourhood D: see the constants below) and applies dv to
+every particle; the two solvers iterate until the mean density error that an iteration removes,
+|lambda_i| D_i / rho0, over all particles falls below their tolerance. With free surfaces (``sph.clamp_negative_pressure``) the sum of a particle's lambda over the solve is kept
 >= 0 (projected Jacobi, as IISPH clamps pressure): a particle with a partial neighbourhood has a low
 summed density and must not be pulled together, but pressure left from the warm start may fall.
 
@@ -53,10 +54,20 @@ from numba import njit
 # on one process or many. A row's share is capped at ERROR_CAP (so 10^8 rows cannot overflow int64).
 ERROR_QUANTUM = 2.0 ** 32
 
-# Jacobi relaxation: without it the iteration diverges (the SPH pressure operator's high-frequency
-# eigenvalues exceed twice its diagonal); 0.5 as in IISPH (Ihmsen et al. 2014). Measured on the
-# hydrostatic tank: 1.0 blows up within 0.1 s, 0.5 converges.
-RELAXATION = 0.5
+# Jacobi relaxation omega. Relaxed Jacobi converges only if omega lambda_max / D < 2, and the SPH
+# pressure operator's largest eigenvalue exceeds its diagonal by a ratio that grows with the number of
+# neighbours (boundaries.lattice_jacobi_ratio: 2D Wendland C2 2.3 at 2.3 spacings, 5.7 at 4; 3D 3.3
+# and 14). omega = min(RELAXATION_MAX, JACOBI_MARGIN / ratio) keeps the highest mode damped with a
+# margin of 2 for the disorder of real particles. Measured: omega = 1 at 2.3 spacings (2D tank) blew
+# up within 0.1 s; the fixed 0.5 used before blew up the Taylor-Green vortex at 3 and 4 spacings.
+# 0.5 is IISPH's choice (Ihmsen et al. 2014).
+RELAXATION_MAX = 0.5
+JACOBI_MARGIN = 1.0
+
+
+def relaxation(jacobi_ratio: float) -> float:
+    """omega for a kernel whose lattice operator has lambda_max / D0 = ``jacobi_ratio``."""
+    return min(RELAXATION_MAX, JACOBI_MARGIN / jacobi_ratio)
 # D_i is floored at the full-neighbourhood value d0: a particle with a partial neighbourhood (free
 # surface, wall) has a small D_i and would otherwise receive an overshooting lambda_i.
 D_FLOOR = 1.0
@@ -65,6 +76,27 @@ D_FLOOR = 1.0
 # wall would never be corrected.
 MIN_ITERATIONS = 2
 ERROR_CAP = 16.0
+
+
+@njit(cache=True, inline="always")
+def quantized_offset(rho_i, rho0):
+    """rho_i / rho0 - 1 as a signed integer count of 2^-32 (capped at +-ERROR_CAP): summed over all
+    particles of all peers in any order, the mean density of a closed flow (``reference_density``)."""
+    return int(max(-ERROR_CAP, min(rho_i / rho0 - 1.0, ERROR_CAP)) * ERROR_QUANTUM)
+
+
+def reference_density(rho0: float, offset_sum: int, n: int) -> float:
+    """The density the density solver drives a closed flow to: the mean summation density.
+
+    In a flow without a free surface (periodic or walled all round: ``sph.clamp_negative_pressure``
+    false) the volume is fixed, so the mean density cannot change; the mean of sum_j m_j W_ij still
+    drifts from rho0 as the particles leave their lattice (a disordered set has a different kernel sum).
+    A uniform density error has no pressure gradient that could remove it: solved against rho0, every
+    step adds a uniform kappa, which grows without bound (Taylor-Green: 8e4 Pa after 0.12 s, then
+    blow-up, because on disordered particles a uniform kappa still pushes). Solving against the mean
+    removes only what a pressure gradient can remove (the compatibility condition of a Poisson
+    problem without a Dirichlet boundary). ``offset_sum`` is the sum of quantized_offset."""
+    return rho0 * (1.0 + offset_sum / ERROR_QUANTUM / max(n, 1))
 
 
 @njit(cache=True, inline="always")
@@ -80,14 +112,15 @@ def density_rate_pair(m_j, dvx, dvy, dvz, gx, gy, gz):
 
 
 @njit(cache=True, inline="always")
-def source(divergence, rho_i, rho0, rate, dt, share):
+def source(divergence, rho_i, rho_ref, rate, dt, share):
     """s_i: the density error the solver removes (module docstring). ``share`` = (dt / dt_flow)^2 < 1
     on a step shortened to land on an output time: a pressure acceleration moves a particle by ~dt^2,
     so a short step corrects that share of the present compression, not all of it with a velocity
-    ~ (rho - rho0) / dt (which would also leave kappa = sum lambda / dt^2 huge for the next step)."""
+    ~ (rho - rho0) / dt (which would also leave kappa = sum lambda / dt^2 huge for the next step).
+    ``rho_ref`` is rho0, or in a closed flow the mean density (reference_density)."""
     if divergence:
         return dt * rate
-    return share * (rho_i - rho0) + dt * rate
+    return share * (rho_i - rho_ref) + dt * rate
 
 
 @njit(cache=True, inline="always")

@@ -11,7 +11,9 @@ with A of order 1-2 (the scene's ``terms.shifting``). The volumes are the lattic
 et al. use m_j / rho_j in an incompressible scheme): with summation density, m_j / rho_j renormalises
 C to ~1 even at a free surface, which would hide the surface from the test below. Here the shift is written as a drift velocity
 dv_i = delta r_i / dt = -A h |v_i| grad C_i, added to the velocity that moves the particle (as XSPH's
-correction is); the momentum equation is untouched.
+correction is); the momentum equation is untouched. The drift diffuses the concentration with a
+diffusivity ~A h |v|, so the step is limited to cfl h / (A max|v|) (sphcore/timestep.py): WCSPH's
+acoustic step is smaller anyway, DFSPH's flow-speed step is not.
 
 Near a free surface grad C points into the fluid because of the missing neighbours, not because
 of disorder, and would push particles out of the fluid: in the free-surface layer (C_i below
