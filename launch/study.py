@@ -62,7 +62,8 @@ def overrides(cfg: dict) -> tuple:
     that use leapfrog are switched: DFSPH's step is a kick-solve-drift)."""
     out = (f"sph.kernel='{cfg['kernel']}'", f"time.cfl={cfg['cfl']}", f"sph.solver='{cfg['solver']}'")
     if cfg["solver"] == "dfsph":
-        out += (f"sph.density_tolerance={cfg['tolerance']}", "time.integrator='symplectic_euler'")
+        out += (f"sph.density_tolerance={cfg['tolerance']}", "time.integrator='symplectic_euler'",
+                "sph.density='summation'")
     return out
 
 
@@ -98,6 +99,7 @@ def term_costs(particles: int = 20_000, steps: int = 40) -> list[dict]:
     base = [f"particles.spacing={dx!r}", "time.mode='fixed'", "time.dt=1e-4"]
     variants = {"none (baseline)": [], "xsph": ["terms.xsph=0.3"], "surface_tension": ["terms.surface_tension=0.05"],
                 "vorticity_confinement": ["terms.vorticity_confinement=0.01"],
+                "continuity density (delta-SPH)": ["sph.density='continuity'"],
                 "central force field": ["forces.central_omega=1.0"]}
     out = []
     for name, extra in variants.items():

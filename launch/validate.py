@@ -201,7 +201,7 @@ def hydrostatic(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions 
     rho0, g = scene.fluid.rest_density, abs(scene.forces.gravity[1])
     sim = Simulation(scene, opts.precision, opts.backend)
     clock = _Clock(sim, opts)
-    t_end = 1.5
+    t_end = 3.0
     times, ke = [], []
     while sim.t < t_end:
         sim.step(dt_cap=t_end - sim.t)

@@ -17,9 +17,12 @@ VARIANTS = {
     "dam_break": [("WCSPH (c0 = 30 m/s)", ()),
                   ("DFSPH, tolerance 1e-3", ("sph.solver=dfsph", "time.dt=0.004", "sph.density_tolerance=1e-3")),
                   ("DFSPH, tolerance 1e-4", ("sph.solver=dfsph", "time.dt=0.004", "sph.density_tolerance=1e-4"))],
-    "hydrostatic": [("WCSPH (c0 = 31.3 m/s)", ()),
-                    ("DFSPH, tolerance 1e-4", ("sph.solver=dfsph", "time.dt=0.001", "sph.density_tolerance=1e-4")),
-                    ("DFSPH, tolerance 1e-5", ("sph.solver=dfsph", "time.dt=0.001", "sph.density_tolerance=1e-5",
+    "hydrostatic": [("WCSPH, continuity + delta-SPH (c0 = 31.3 m/s)", ()),
+                    ("WCSPH, summation density", ("sph.density=summation",)),
+                    ("DFSPH, tolerance 1e-4", ("sph.solver=dfsph", "sph.density=summation", "time.dt=0.001",
+                                               "sph.density_tolerance=1e-4")),
+                    ("DFSPH, tolerance 1e-5", ("sph.solver=dfsph", "sph.density=summation", "time.dt=0.001",
+                                               "sph.density_tolerance=1e-5",
                                                "sph.max_iterations=1000"))],
 }
 

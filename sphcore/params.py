@@ -48,6 +48,7 @@ class Params(NamedTuple):
     wall_table_end: float  # wall tables span d in [0, wall_table_end] (m), boundaries.table_end
     dfsph_d0: float     # DFSPH diagonal of a full neighbourhood (boundaries.lattice_pressure_diagonal; kg^2/m^8 in 3D)
     dfsph_omega: float  # DFSPH Jacobi relaxation (physics/dfsph.relaxation)
+    delta_hc0: float    # delta-SPH diffusion factor delta h c0 (m^2/s; physics/continuity.py)
 
 
 def make_params(dtype, **values) -> Params:

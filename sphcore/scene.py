@@ -84,6 +84,11 @@ class SPH:
     divergence_tolerance: float = spec(0.001, "dfsph: the divergence solve iterates until the mean |D rho/Dt| dt / "
                                        "rho0 is below this (0 = no divergence solve)", range=(0.0, 1.0))
     max_iterations: int = spec(100, "dfsph: most iterations of either solve in one step", range=(1, 10_000))
+    density: str = spec("summation", "density: summation (rho = sum m W, from the positions) or continuity "
+                        "(integrated D rho/Dt with delta-SPH diffusion: smooth pressure at rest; wcsph only)",
+                        choices=("summation", "continuity"))
+    delta: float = spec(0.1, "continuity: delta-SPH diffusion coefficient delta (Molteni & Colagrossi 2009, with "
+                        "the hydrostatic correction of Fourtakas et al. 2019; 0 = no diffusion)", range=(0.0, 1.0))
     kernel: str = spec("wendland_c2", "smoothing kernel family", choices=tuple(KERNELS))
     support: float = spec(2.3, "support radius H in units of the spacing (about 50 neighbours in 3D at 2.3)",
                           range=(1.0, 4.0))
@@ -123,7 +128,7 @@ class Time:
     mode: str = spec("adaptive", "time step: fixed dt, or adaptive from CFL limits", choices=("fixed", "adaptive"))
     dt: float = spec(1.0e-4, "fixed: the time step; adaptive: the largest allowed step (s)",
                      range=(0.0, 1.0), min_exclusive=True)
-    cfl: float = spec(0.25, "CFL number for the acoustic, force and viscous limits", range=(0.0, 2.0),
+    cfl: float = spec(0.25, "CFL number for the acoustic, force, viscous and shifting limits", range=(0.0, 2.0),
                       min_exclusive=True)
     steps: int = spec(200, "steps to run when neither --steps nor --until is given", range=(0, 10**9))
 
@@ -581,6 +586,9 @@ def _check_combinations(s: Scene) -> Scene:
     if s.sph.solver == "dfsph" and s.time.integrator != "symplectic_euler":
         raise SceneError(f"time.integrator = {s.time.integrator!r}: sph.solver = 'dfsph' integrates with "
                          "'symplectic_euler' (its pressure solve predicts v* = v + dt a and then moves x by dt v*)")
+    if s.sph.solver == "dfsph" and s.sph.density == "continuity":
+        raise SceneError("sph.density = 'continuity': sph.solver = 'dfsph' solves for the summation density "
+                         "(use sph.density = 'summation', or sph.solver = 'wcsph')")
     if s.sph.viscosity in ("muller", "morris") and s.sph.nu <= 0:
         raise SceneError(f"sph.nu = {s.sph.nu!r}: viscosity = {s.sph.viscosity!r} needs nu > 0")
     if s.fluid.initial_flow == "taylor_green":

@@ -111,6 +111,7 @@ class Simulation:
             wall_table_end=table_end(self.H, dx),
             dfsph_d0=lattice_pressure_diagonal(self.kernel, scene.dim, self.H, dx, rho0) if dfsph else 1.0,
             dfsph_omega=relaxation(lattice_jacobi_ratio(self.kernel, scene.dim, self.H, dx)) if dfsph else 0.5,
+            delta_hc0=sph.delta * self.h * sph.sound_speed,
         )
         self.use_xsph = scene.terms.xsph > 0.0
         self.use_shifting = scene.terms.shifting > 0.0
@@ -118,13 +119,18 @@ class Simulation:
         self.use_surface_tension = scene.terms.surface_tension > 0.0
         self.use_vorticity = scene.terms.vorticity_confinement > 0.0
         self.dfsph = sph.solver == "dfsph"
+        self.continuity = sph.density == "continuity"
+        self.use_diffusion = self.continuity and sph.delta > 0.0
         self.use_divergence_solve = self.dfsph and sph.divergence_tolerance > 0.0
         # per solver ("density", "divergence"): steps solved, iterations in all, most in one step,
         # steps that stopped at sph.max_iterations, and the last step's iterations and mean error
         self.solver_stats = {name: {"steps": 0, "iterations": 0, "max": 0, "unconverged": 0, "last": 0,
                                     "last_error": 0.0} for name in ("density", "divergence")}
-        if self.dfsph:  # kappa = p / rho^2 follows its particle: the next step's warm start (physics/dfsph.py)
-            self._state.extra["kappa"] = np.zeros(self.n_particles, dtype=dtype)
+        # per-particle arrays that follow their particle (ParticleState.extra): DFSPH's kappa = p / rho^2,
+        # the next step's warm start (physics/dfsph.py); the carried density (physics/continuity.py).
+        # 0 means a cold start: kappa = 0, density = rho0.
+        self.extra_names = (("kappa",) if self.dfsph else ()) + (("density",) if self.continuity else ())
+        self._add_extra(self._state)
         self._resize_scratch(self.n_particles)
         self._lo = self.grid_lo.astype(dtype)
 
@@ -157,10 +163,16 @@ class Simulation:
     @state.setter
     def state(self, new: ParticleState):
         """Replace the particles (halo exchange, checkpoint restore); a device uploads them before
-        its next stage."""
+        its next stage. Carried arrays the new state lacks start cold (zeros)."""
+        self._add_extra(new)
         self._state = new
         if self.backend == "cuda":
             self.engine.device_stale = True
+
+    def _add_extra(self, state: ParticleState):
+        for name in self.extra_names:
+            if name not in state.extra:
+                state.extra[name] = np.zeros(state.x.shape[0], dtype=self.dtype)
 
     def set_parameter(self, key: str, value):
         """Change a run-time settable value (nodes/control.py SETTABLE: body forces, viscosity, wall
@@ -198,6 +210,7 @@ class Simulation:
         self._omega = np.zeros((n if self.use_vorticity else 0, 3), dtype=dtype)
         self._leaked = np.zeros(n, dtype=np.int8)
         self._fill = np.ones(n, dtype=dtype)  # wall fill fraction theta (physics/walls.py)
+        self._drho = np.zeros(n if self.continuity else 1, dtype=dtype)  # delta-SPH drho (kg/m^3/s; continuity.py)
         m = n if self.dfsph else 0  # DFSPH (physics/dfsph.py):
         self._wgrad = np.zeros((m, 3), dtype=dtype)   # wall gradient g^wall (kg/m^4)
         self._inv_d = np.zeros(m, dtype=dtype)        # 1 / D_i (m^8/kg^2 in 3D)
@@ -240,7 +253,7 @@ class Simulation:
         with t("grid"):
             self._neighbours()                                     # x                -> order, neighbour lists
         with t("density"):
-            e.density(prm)                                         # x, m             -> rho, p
+            e.density(prm)                                         # x, m (v)         -> rho, p
         if self.dfsph:
             with t("dfsph_factor"):
                 offset = e.dfsph_factor(prm)                       # x, m, rho        -> 1/D, g^wall; p = 0
@@ -250,6 +263,9 @@ class Simulation:
             yield from self._pressure_solve(halo, prm, True, self.dt_flow or self.scene.time.dt)
         with t("forces"):
             e.forces(prm)                                          # x, v, rho, p     -> a
+        if self.use_diffusion:
+            with t("diffusion"):
+                e.diffusion(prm)                                   # x, m, rho        -> delta-SPH drho
         if self.use_surface_tension:
             with t("surface_tension"):
                 e.surface_tension(prm)                             # x, m, rho        -> a (+=)
@@ -280,6 +296,8 @@ class Simulation:
             with t("dfsph_kick"):
                 e.dfsph_finish(self.dtype.type(1.0 / dt), dt >= self.dt_flow)  # v*, lambda -> a, kappa, p
         with t("integrate"):                                       # a                -> v, x; walls, periodic
+            if self.use_diffusion:
+                e.density_update(self.dtype.type(dt))              # drho             -> carried rho
             self.leaks += e.integrate(prm, self.dtype.type(dt), self.dtype.type(self.dt_prev))
         self.dt_prev = dt
         self.dt = dt
@@ -413,7 +431,7 @@ class Simulation:
         e = self.engine
         yield from halo.exchange_positions(self)
         self._neighbours()
-        e.density(prm)
+        e.density(prm, commit=False)  # continuity: the pending update is applied by the next step
         if self.dfsph:
             yield from self._reference_density(halo, e.dfsph_factor(prm))
         yield from self._exchange_fields(halo)

@@ -56,7 +56,8 @@ def copy_state(src, dst):
     from sphcore.state import ParticleState
     s = src.state
     n = s.n_owned
-    dst.state = ParticleState.create(s.id[:n].copy(), s.x[:n].copy(), s.v[:n].copy(), s.m[:n].copy(), dst.dtype)
+    dst.state = ParticleState.create(s.id[:n].copy(), s.x[:n].copy(), s.v[:n].copy(), s.m[:n].copy(), dst.dtype,
+                                     extra={k: a[:n].copy() for k, a in s.extra.items()})
     dst.t, dst.step_index, dst.dt_prev = src.t, src.step_index, src.dt_prev
 
 
@@ -133,6 +134,7 @@ CASES = {
                                              "sph.viscosity='muller'", "sph.nu=1e-4", "sph.kernel='muller'"),
                                        "f64", 2),
     "peers_f64": lambda: peers_case(scene("tiny.toml"), "f64", 2),
+    "continuity_f64": lambda: steps_case(scene("tiny.toml", "sph.density='continuity'"), "f64", 3),
     "dfsph_f64": lambda: steps_case(scene("tiny.toml", "sph.solver='dfsph'", "time.dt=0.002"), "f64", 3),
     "dfsph_peers_f64": lambda: peers_case(scene("tiny.toml", "sph.solver='dfsph'", "time.dt=0.002"), "f64", 2),
 }

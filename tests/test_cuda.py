@@ -60,7 +60,7 @@ def test_float32_steps_match_cpu(parity):
     _check(parity["tiny_f32"], "f32")
 
 
-@pytest.mark.parametrize("case", ["terms_f64", "periodic_f64", "obstacle_f64", "dfsph_f64"])
+@pytest.mark.parametrize("case", ["terms_f64", "periodic_f64", "obstacle_f64", "dfsph_f64", "continuity_f64"])
 def test_options_match_cpu(parity, case):
     """Optional terms (XSPH, surface tension, vorticity confinement), leapfrog, Morris and Müller
     viscosity, linear EOS, cubic spline and Müller kernels, periodic axes, an obstacle, the DFSPH
@@ -80,7 +80,7 @@ def test_every_kernel_compiles_to_ptx(precision):
     """The shared row functions are valid CUDA: every kernel compiles for an H100 (sm_90)."""
     from sphcore.backends import cuda
     ptx = cuda.compile_all(dtype=precision, periodic=1, viscosity=3)
-    assert len(ptx) == 22  # 17 WCSPH and binning kernels + 5 of DFSPH
+    assert len(ptx) == 24  # 17 WCSPH and binning kernels + 5 of DFSPH + 2 of the continuity density
     for name, text in ptx.items():
         assert ".target sm_90" in text and ".entry" in text, name
 

@@ -18,7 +18,7 @@ def _periodic_box(overrides=()):
 def _drift(sim, v):
     """The shifting drift of every particle for velocities v (one refresh, then the shifting stage)."""
     s = sim.state
-    sim.state = ParticleState.create(s.id, s.x, v, s.m, sim.dtype)
+    sim.state = ParticleState.create(s.id, s.x, v, s.m, sim.dtype, extra=s.extra)
     sim.refresh()
     sim._resize_scratch(sim.state.n)
     sim.engine.shifting(sim.prm)
@@ -39,7 +39,7 @@ def test_shifting_moves_particles_out_of_a_cluster():
     x = s.x.copy()
     i = int(np.argmin(np.hypot(x[:, 0] - 0.5, x[:, 1] - 0.5)))
     x[i, 0] += 0.3 * 0.05
-    sim.state = ParticleState.create(s.id, x, s.v, s.m, sim.dtype)
+    sim.state = ParticleState.create(s.id, x, s.v, s.m, sim.dtype, extra=s.extra)
     dv = _drift(sim, np.tile([2.0, 0.0, 0.0], (sim.n_particles, 1)))
     row = int(np.nonzero(sim.state.id[: sim.state.n_owned] == s.id[i])[0][0])
     assert dv[row, 0] < 0.0  # back towards its lattice site
@@ -53,7 +53,7 @@ def test_no_shift_along_a_wall_normal_or_in_the_surface_layer():
     rng = np.random.default_rng(3)
     s = sim.state
     x = s.x + rng.uniform(-0.1, 0.1, s.x.shape) * 0.05 * np.array([1, 1, 0])
-    sim.state = ParticleState.create(s.id, x, s.v, s.m, sim.dtype)
+    sim.state = ParticleState.create(s.id, x, s.v, s.m, sim.dtype, extra=s.extra)
     dv = _drift(sim, np.tile([1.0, 1.0, 0.0], (sim.n_particles, 1)))
     s = sim.state
     n = s.n_owned

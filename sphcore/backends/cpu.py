@@ -10,10 +10,10 @@ a driver containing only the branches it uses.
 from numba import literally, njit, prange
 
 from sphcore.backends.literal import literal_dispatch
-from sphcore.backends.rows import (acceleration_row, boundaries_row, confinement_row, density_row, dfsph_factor_row,
-                                   dfsph_finish_row, dfsph_kick_row, dfsph_source_row, dfsph_update_row,
-                                   integrate_row, shifting_row, statistics_row, surface_tension_row, vorticity_row,
-                                   xsph_row)
+from sphcore.backends.rows import (acceleration_row, boundaries_row, confinement_row, density_row, density_update_row,
+                                   dfsph_factor_row, dfsph_finish_row, dfsph_kick_row, dfsph_source_row,
+                                   dfsph_update_row, diffusion_row, integrate_row, shifting_row, statistics_row,
+                                   surface_tension_row, vorticity_row, xsph_row)
 from sphcore.physics.dfsph import quantized_error, quantized_offset
 
 # Floating-point licences for the neighbour passes: reassociation (the sums over neighbours become
@@ -24,17 +24,36 @@ from sphcore.physics.dfsph import quantized_error, quantized_offset
 FASTMATH = {"reassoc", "contract", "arcp", "nsz"}
 
 
-@literal_dispatch(3)
+@literal_dispatch(4)
 @njit(cache=True, parallel=True, fastmath=FASTMATH)
-def compute_density(kernel, eos, periodic, prm, n, x, m, nbr, counts, wall_kind, wall_data, wall_tables, rho, p,
-                    fill):
+def compute_density(kernel, eos, periodic, continuity, prm, n, x, v, m, nbr, counts, wall_kind, wall_data,
+                    wall_tables, dt_prev, commit, rho_c, rho, p, fill):
     """rho, p and the wall fill fraction of rows 0..n-1 (rows.density_row)."""
     literally(kernel)
     literally(eos)
     literally(periodic)
+    literally(continuity)
     for i in prange(n):
-        density_row(kernel, eos, periodic, prm, i, x, m, nbr, counts, wall_kind, wall_data, wall_tables, rho, p,
-                    fill)
+        density_row(kernel, eos, periodic, continuity, prm, i, x, v, m, nbr, counts, wall_kind, wall_data,
+                    wall_tables, dt_prev, commit, rho_c, rho, p, fill)
+
+
+@literal_dispatch(3)
+@njit(cache=True, parallel=True, fastmath=FASTMATH)
+def density_diffusion(kernel, eos, periodic, prm, n, x, m, rho, nbr, counts, drho):
+    """delta-SPH density diffusion of rows 0..n-1 (rows.diffusion_row)."""
+    literally(kernel)
+    literally(eos)
+    literally(periodic)
+    for i in prange(n):
+        diffusion_row(kernel, eos, periodic, prm, i, x, m, rho, nbr, counts, drho)
+
+
+@njit(cache=True, parallel=True)
+def density_update(n, rho_c, drho, dt):
+    """The carried density of rows 0..n-1 advanced by dt (rows.density_update_row)."""
+    for i in prange(n):
+        density_update_row(i, rho_c, drho, dt)
 
 
 @literal_dispatch(3)
@@ -221,11 +240,23 @@ class CpuStages:
     def bin(self):
         return self.sim.grid.bin(self.sim.state)  # x -> (cell, id) order, neighbour lists
 
-    def density(self, prm):
+    def density(self, prm, commit=True):
         sim = self.sim
         s, w_, g = sim.state, sim.walls, sim.grid
-        compute_density(int(sim.kernel), int(sim.eos), sim.periodic, prm, s.n_owned, s.x, s.m, g.nbr, g.counts,
-                        w_.kind, w_.data, w_.tables, s.rho, s.p, sim._fill)
+        rho_c = s.extra["density"] if sim.continuity else sim._drho
+        compute_density(int(sim.kernel), int(sim.eos), sim.periodic, int(sim.continuity), prm, s.n_owned, s.x, s.v,
+                        s.m, g.nbr, g.counts, w_.kind, w_.data, w_.tables, sim.dtype.type(sim.dt_prev), bool(commit),
+                        rho_c, s.rho, s.p, sim._fill)
+
+    def diffusion(self, prm):
+        sim = self.sim
+        s, g = sim.state, sim.grid
+        density_diffusion(int(sim.kernel), int(sim.eos), sim.periodic, prm, s.n_owned, s.x, s.m, s.rho, g.nbr,
+                          g.counts, sim._drho)
+
+    def density_update(self, dt):
+        sim = self.sim
+        density_update(sim.state.n_owned, sim.state.extra["density"], sim._drho, dt)
 
     def forces(self, prm):
         sim = self.sim

@@ -100,15 +100,41 @@ def blocks(n: int, block: int = BLOCK) -> int:
 # -- physics kernels (one per stage and choice combination) ---------------------------------------
 
 @functools.cache
-def density_kernel(kernel, eos, periodic):
+def density_kernel(kernel, eos, periodic, continuity):
     row = _device(rows.density_row)
 
     @cuda.jit
-    def density(prm, n, x, m, nbr, counts, wall_kind, wall_data, wall_tables, rho, p, fill):
+    def density(prm, n, x, v, m, nbr, counts, wall_kind, wall_data, wall_tables, dt_prev, commit, rho_c, rho, p,
+                fill):
         i = cuda.grid(1)
         if i < n:
-            row(kernel, eos, periodic, prm, i, x, m, nbr, counts, wall_kind, wall_data, wall_tables, rho, p, fill)
+            row(kernel, eos, periodic, continuity, prm, i, x, v, m, nbr, counts, wall_kind, wall_data, wall_tables,
+                dt_prev, commit, rho_c, rho, p, fill)
     return density
+
+
+@functools.cache
+def diffusion_kernel(kernel, eos, periodic):
+    row = _device(rows.diffusion_row)
+
+    @cuda.jit
+    def diffusion(prm, n, x, m, rho, nbr, counts, drho):
+        i = cuda.grid(1)
+        if i < n:
+            row(kernel, eos, periodic, prm, i, x, m, rho, nbr, counts, drho)
+    return diffusion
+
+
+@functools.cache
+def density_update_kernel():
+    row = _device(rows.density_update_row)
+
+    @cuda.jit
+    def density_update(n, rho_c, drho, dt):
+        i = cuda.grid(1)
+        if i < n:
+            row(i, rho_c, drho, dt)
+    return density_update
 
 
 @functools.cache
@@ -716,6 +742,7 @@ class CudaStages:
         self.d_omega = cuda.device_array((n if sim.use_vorticity else 1, 3), dtype=dt)
         self.d_leaked = cuda.device_array(max(n, 1), dtype=np.int8)
         self.d_fill = cuda.device_array(max(n, 1), dtype=dt)
+        self.d_drho = cuda.device_array(max(n, 1) if sim.continuity else 1, dtype=dt)  # D rho / Dt
         m = max(n, 1) if sim.dfsph else 1  # DFSPH scratch (Simulation._resize_scratch)
         self.d_wgrad = cuda.device_array((m, 3), dtype=dt)
         self.d_inv_d = cuda.device_array(m, dtype=dt)
@@ -735,14 +762,31 @@ class CudaStages:
         cuda.synchronize()
         return most
 
-    def density(self, prm):
+    def density(self, prm, commit=True):
         self._begin()
         sim, d, g = self.sim, self.d, self.grid
         n = d.n_owned
         if n:
-            density_kernel(int(sim.kernel), int(sim.eos), sim.periodic)[blocks(n), BLOCK](
-                prm, n, d.x, d.m, g.d_nbr, g.d_counts, self.wall_kind, self.wall_data, self.wall_tables, d.rho,
-                d.p, self.d_fill)
+            rho_c = d.arrays["density"] if sim.continuity else self.d_drho
+            density_kernel(int(sim.kernel), int(sim.eos), sim.periodic, int(sim.continuity))[blocks(n), BLOCK](
+                prm, n, d.x, d.v, d.m, g.d_nbr, g.d_counts, self.wall_kind, self.wall_data, self.wall_tables,
+                sim.dtype.type(sim.dt_prev), bool(commit), rho_c, d.rho, d.p, self.d_fill)
+        cuda.synchronize()
+
+    def diffusion(self, prm):
+        self._begin()
+        sim, d, g = self.sim, self.d, self.grid
+        n = d.n_owned
+        if n:
+            diffusion_kernel(int(sim.kernel), int(sim.eos), sim.periodic)[blocks(n), BLOCK](
+                prm, n, d.x, d.m, d.rho, g.d_nbr, g.d_counts, self.d_drho)
+        cuda.synchronize()
+
+    def density_update(self, dt):
+        self._begin()
+        d = self.d
+        if d.n_owned:
+            density_update_kernel()[blocks(d.n_owned), BLOCK](d.n_owned, d.arrays["density"], self.d_drho, dt)
         cuda.synchronize()
 
     def forces(self, prm):
@@ -880,7 +924,7 @@ def compile_all(kernel=0, eos=0, viscosity=1, periodic=0, integrator=0, dtype="f
                       central_omega2=1.0, central=(0.0, 0.0, 0.0),
                       period=(0.0, 0.0, 0.0), xsph_eps=0.0, shift_a=1.0, sigma=0.0, st_threshold=0.0, vorticity_eps=0.0,
                       restitution=0.0, friction=0.0, wall_gap=0.0, dx=0.5, inv_s=1.0, dim3=True, wall_table_end=1.0,
-                      dfsph_d0=1.0, dfsph_omega=0.5)
+                      dfsph_d0=1.0, dfsph_omega=0.5, delta_hc0=1.0)
     P = numba.typeof(prm)
     v1, v2 = types.Array(f, 1, "C"), types.Array(f, 2, "C")
     i1, i8, i8v = types.Array(types.int32, 1, "C"), types.Array(types.int8, 1, "C"), types.Array(types.int64, 1, "C")
@@ -889,7 +933,10 @@ def compile_all(kernel=0, eos=0, viscosity=1, periodic=0, integrator=0, dtype="f
     n = types.int64
     cell_keys, scatter, sort_bins, cell_ranges = _binning_kernels()
     sigs = {
-        "density": (density_kernel(kernel, eos, periodic), (P, n, v2, v1, nbr, i1, wk, wd, wd, v1, v1, v1)),
+        "density": (density_kernel(kernel, eos, periodic, 1),
+                    (P, n, v2, v2, v1, nbr, i1, wk, wd, wd, f, types.boolean, v1, v1, v1, v1)),
+        "diffusion": (diffusion_kernel(kernel, eos, periodic), (P, n, v2, v1, v1, nbr, i1, v1)),
+        "density_update": (density_update_kernel(), (n, v1, v1, f)),
         "acceleration": (acceleration_kernel(kernel, viscosity, periodic),
                          (P, n, v2, v2, v1, v1, v1, nbr, i1, wk, wd, wd, v1, v2)),
         "surface_tension": (surface_tension_kernel(kernel, periodic), (P, n, v2, v1, v1, nbr, i1, v2)),

@@ -17,8 +17,9 @@ from numba import njit
 
 from sphcore.grid import minimum_image
 from sphcore.physics.density import density_pair
-from sphcore.physics.dfsph import density_rate_pair, increment, inverse_diagonal, source
-from sphcore.physics.eos import pressure
+from sphcore.physics.continuity import density_rate_pair, diffusion_pair, hydrostatic_difference
+from sphcore.physics.dfsph import increment, inverse_diagonal, source
+from sphcore.physics.eos import pressure, sound_speed_sq
 from sphcore.physics.external import body_acceleration, central_acceleration
 from sphcore.physics.kernels import dw_dr_over_r, lap_w_viscosity, w
 from sphcore.physics.pressure import pressure_pair
@@ -47,22 +48,70 @@ def separation(periodic, x, i, j, prm):
 
 
 @njit(cache=True, inline="always")
-def density_row(kernel, eos, periodic, prm, i, x, m, nbr, counts, wall_kind, wall_data, wall_tables, rho, p, fill):
+def density_row(kernel, eos, periodic, continuity, prm, i, x, v, m, nbr, counts, wall_kind, wall_data, wall_tables,
+                dt_prev, commit, rho_c, rho, p, fill):
     """rho_i = m_i W(0) + sum_j m_j W_ij + theta_i rho0 Phi(d_i);  p_i = EOS(rho_i); fill_i = theta_i.
-    (density.py, eos.py, walls.py)"""
+    With ``continuity``: rho_i = rho_c[i] + dt_prev D rho_i/Dt, the carried density advanced by the
+    continuity equation over the previous step with the velocities that moved the particles here
+    (stored back if ``commit``; a carried 0 starts at rho0). (density.py, continuity.py, eos.py, walls.py)"""
     rho_i = m[i] * prm.w0
+    rate = 0.0 * rho_i
     for k in range(counts[i]):
         j = nbr[i, k]
         dx, dy, dz = separation(periodic, x, i, j, prm)
-        r_ij = math.sqrt(dx * dx + dy * dy + dz * dz)
+        r2 = dx * dx + dy * dy + dz * dz
+        r_ij = math.sqrt(r2)
         rho_i += density_pair(kernel, m[j], r_ij, prm.H, prm.s_w)
+        if continuity and r2 > 0.0:
+            g = dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
+            rate += density_rate_pair(m[j], v[i, 0] - v[j, 0], v[i, 1] - v[j, 1], v[i, 2] - v[j, 2],
+                                      g * dx, g * dy, g * dz)
     drho, _, _, _ = wall_terms(kernel, prm, False, wall_kind, wall_data, wall_tables, x[i, 0], x[i, 1], x[i, 2],
                                0.0 * rho_i, rho_i, 0.0 * rho_i, 0.0 * rho_i, 0.0 * rho_i)
     theta = fill_fraction(rho_i, drho, prm.rho0)
     fill[i] = theta
     rho_i += theta * drho
+    if continuity:
+        if rho_c[i] <= 0.0:  # a new run: its lattice is at rest density (continuity.py)
+            rho_c[i] = prm.rho0
+            rho_i = rho_c[i]
+        else:
+            # the wall's share rho0 theta Phi(d) changes at rho0 theta grad Phi . v_i (see dfsph_factor_row)
+            r = rho_c[i]
+            _, fx, fy, fz = wall_terms(kernel, prm, True, wall_kind, wall_data, wall_tables, x[i, 0], x[i, 1],
+                                       x[i, 2], 0.5 * r * r, r, 0.0 * r, 0.0 * r, 0.0 * r)
+            rate -= theta * (fx * v[i, 0] + fy * v[i, 1] + fz * v[i, 2])
+            rho_i = r + dt_prev * rate
+            if commit:
+                rho_c[i] = rho_i
     rho[i] = rho_i
     p[i] = pressure(eos, rho_i, prm.rho0, prm.c0, prm.clamp_negative)
+
+
+@njit(cache=True, inline="always")
+def diffusion_row(kernel, eos, periodic, prm, i, x, m, rho, nbr, counts, drho):
+    """drho_i = the delta-SPH density diffusion with its hydrostatic correction.   (continuity.py)"""
+    rho_i = rho[i]
+    diff = 0.0 * rho_i
+    for k in range(counts[i]):
+        j = nbr[i, k]
+        dx, dy, dz = separation(periodic, x, i, j, prm)
+        r2 = dx * dx + dy * dy + dz * dz
+        if r2 == 0.0:
+            continue
+        g = dw_dr_over_r(kernel, math.sqrt(r2), prm.H, prm.s_g)
+        # (dx, dy, dz) = x_i - x_j; the pair's mean density sets the hydrostatic step (symmetric in i, j)
+        rho_m = 0.5 * (rho_i + rho[j])
+        hydro = hydrostatic_difference(rho_m, sound_speed_sq(eos, rho_m, prm.rho0, prm.c0),
+                                       prm.gravity_x, prm.gravity_y, prm.gravity_z, -dx, -dy, -dz)
+        diff += diffusion_pair(m[j], rho_i, rho[j], hydro, g)
+    drho[i] = prm.delta_hc0 * diff
+
+
+@njit(cache=True, inline="always")
+def density_update_row(i, rho_c, drho, dt):
+    """rho_i += dt drho_i (the carried density; continuity.py)."""
+    rho_c[i] += dt * drho[i]
 
 
 @njit(cache=True, inline="always")

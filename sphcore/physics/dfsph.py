@@ -106,12 +106,6 @@ def quantized_error(e):
 
 
 @njit(cache=True, inline="always")
-def density_rate_pair(m_j, dvx, dvy, dvz, gx, gy, gz):
-    """m_j (v_i - v_j) . grad W_ij: neighbour j's share of D rho_i / Dt (grad W_ij = (gx, gy, gz))."""
-    return m_j * (dvx * gx + dvy * gy + dvz * gz)
-
-
-@njit(cache=True, inline="always")
 def source(divergence, rho_i, rho_ref, rate, dt, share):
     """s_i: the density error the solver removes (module docstring). ``share`` = (dt / dt_flow)^2 < 1
     on a step shortened to land on an output time: a pressure acceleration moves a particle by ~dt^2,

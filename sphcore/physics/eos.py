@@ -25,3 +25,13 @@ def pressure(eos, rho, rho0, c0, clamp_negative):
     if clamp_negative and p < 0.0:
         p = 0.0 * p
     return p
+
+
+@njit(cache=True, inline="always")
+def sound_speed_sq(eos, rho, rho0, c0):
+    """dp/drho at rho (m^2/s^2): c0^2 (linear), c0^2 (rho/rho0)^(gamma-1) (Tait)."""
+    if eos == 0:  # EOS.LINEAR
+        return c0 * c0 + 0.0 * rho
+    ratio = rho / rho0
+    r2 = ratio * ratio
+    return c0 * c0 * (r2 * r2 * r2)
