@@ -213,6 +213,9 @@ def build_parser() -> argparse.ArgumentParser:
     validate.add_argument("--out", type=Path, default=Path("runs/validate"), help="folder for the plots")
     validate.add_argument("--backend", choices=("cpu", "cuda"), default="cpu",
                           help="run the cases on the CPU or on a GPU (float64 either way)")
+    validate.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                          help="override a key of every case's scene (repeatable), e.g. --set sph.density=summation; "
+                               "the tolerances stay the same; particles.spacing is set by --quick")
 
     study = sub.add_parser(
         "study", help="measure error and cost of every accuracy knob (solver, kernel, resolution, precision, CFL)",
@@ -289,10 +292,14 @@ def main(argv: list[str] | None = None) -> int:
             if not names or unknown:
                 raise UsageError(f"validate {' '.join(unknown) or '(nothing)'}: choose from {', '.join(CASES)} "
                                  "or --all")
+            spacing = [o for o in args.overrides if o.split("=", 1)[0].strip() == "particles.spacing"]
+            if spacing:
+                raise UsageError(f"validate --set {spacing[0]}: each case sets its own spacing (full, or --quick); "
+                                 "the metrics' reference depends on it")
             if args.backend == "cuda":
                 from sphcore.backends import cuda
                 cuda.require()
-            return run_validate(names, args.quick, args.out, args.backend)
+            return run_validate(names, args.quick, args.out, args.backend, tuple(args.overrides))
         if args.command == "study":
             from launch.study import CASES as STUDY_CASES, run_study
             names = args.cases or list(STUDY_CASES)

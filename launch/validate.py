@@ -410,13 +410,16 @@ CASES = {"hydrostatic": hydrostatic, "dam_break": dam_break, "dam_break_3d": dam
          "taylor_green": taylor_green, "oscillating_drop": oscillating_drop, "poiseuille": poiseuille}
 
 
-def run_validate(names: list[str], quick: bool, out: Path, backend: str = "cpu") -> int:
+def run_validate(names: list[str], quick: bool, out: Path, backend: str = "cpu", overrides: tuple = ()) -> int:
+    """Run the named cases; ``overrides`` (--set strings) apply to every case's scene."""
     out.mkdir(parents=True, exist_ok=True)
     failed = 0
     print(f"{'metric':<34} {'value':>10} {'tolerance':>10} result")
+    if overrides:
+        print(f"scene overrides: {' '.join(overrides)}")
     for name in names:
         log.info("%s (%s)", name, "quick" if quick else "full")
-        for m in CASES[name](quick, out, backend):
+        for m in CASES[name](quick, out, backend, CaseOptions(backend, overrides=overrides)):
             print(m.line(), flush=True)
             failed += not m.passed
     print(f"plots in {out}/")

@@ -107,3 +107,19 @@ def test_poiseuille_quick_meets_its_tolerance(tmp_path, capsys):
     rc = run_validate(["poiseuille"], quick=True, out=tmp_path)
     line = [x.split() for x in capsys.readouterr().out.splitlines() if x.startswith("poiseuille.")][0]
     assert line[3] == "PASS" and rc == 0
+
+
+def test_hydrostatic_quick_passes_and_set_overrides_reach_the_scene(tmp_path, capsys):
+    # The shipped tank (carried density, delta-SPH) meets all three tolerances at quick resolution
+    assert main(["validate", "hydrostatic", "--quick", "--out", str(tmp_path)]) == 0
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("hydrostatic.")]
+    assert len(lines) == 3 and all(line.split()[3] == "PASS" for line in lines)
+    # With --set sph.density=summation the same case fails its single-particle metric (17 %)
+    assert main(["validate", "hydrostatic", "--quick", "--out", str(tmp_path), "--set", "sph.density=summation"]) == 1
+    out = capsys.readouterr().out
+    assert "scene overrides: sph.density=summation" in out
+    single = [line for line in out.splitlines() if line.startswith("hydrostatic.pressure_error")][0]
+    assert single.split()[3] == "FAIL" and float(single.split()[1]) > 0.1
+    # The spacing belongs to the case
+    assert main(["validate", "hydrostatic", "--set", "particles.spacing=0.05"]) == 2
+    assert "each case sets its own spacing" in capsys.readouterr().err

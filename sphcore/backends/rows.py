@@ -48,6 +48,15 @@ def separation(periodic, x, i, j, prm):
 
 
 @njit(cache=True, inline="always")
+def wall_density_gradient(kernel, prm, wall_kind, wall_data, wall_tables, x, i, rho_i, theta):
+    """g_i^wall = grad_i of the wall's density share theta rho0 Phi(d_i): the walls' pressure push at
+    p_i = rho_i^2 / 2 without body force is -sum_virtual m grad W = -g_i^wall / theta.   (walls.py)"""
+    _, fx, fy, fz = wall_terms(kernel, prm, True, wall_kind, wall_data, wall_tables, x[i, 0], x[i, 1], x[i, 2],
+                               0.5 * rho_i * rho_i, rho_i, 0.0 * rho_i, 0.0 * rho_i, 0.0 * rho_i)
+    return -theta * fx, -theta * fy, -theta * fz
+
+
+@njit(cache=True, inline="always")
 def density_row(kernel, eos, periodic, continuity, prm, i, x, v, m, nbr, counts, wall_kind, wall_data, wall_tables,
                 dt_prev, commit, rho_c, rho, p, fill):
     """rho_i = m_i W(0) + sum_j m_j W_ij + theta_i rho0 Phi(d_i);  p_i = EOS(rho_i); fill_i = theta_i.
@@ -76,11 +85,10 @@ def density_row(kernel, eos, periodic, continuity, prm, i, x, v, m, nbr, counts,
             rho_c[i] = prm.rho0
             rho_i = rho_c[i]
         else:
-            # the wall's share rho0 theta Phi(d) changes at rho0 theta grad Phi . v_i (see dfsph_factor_row)
+            # the wall's share theta rho0 Phi(d) changes at its gradient . v_i
             r = rho_c[i]
-            _, fx, fy, fz = wall_terms(kernel, prm, True, wall_kind, wall_data, wall_tables, x[i, 0], x[i, 1],
-                                       x[i, 2], 0.5 * r * r, r, 0.0 * r, 0.0 * r, 0.0 * r)
-            rate -= theta * (fx * v[i, 0] + fy * v[i, 1] + fz * v[i, 2])
+            wx, wy, wz = wall_density_gradient(kernel, prm, wall_kind, wall_data, wall_tables, x, i, r, theta)
+            rate += wx * v[i, 0] + wy * v[i, 1] + wz * v[i, 2]
             rho_i = r + dt_prev * rate
             if commit:
                 rho_c[i] = rho_i
@@ -191,13 +199,8 @@ def dfsph_factor_row(kernel, periodic, prm, i, x, m, rho, nbr, counts, wall_kind
         gy += g * dy
         gz += g * dz
         sum_sq += g * g * r2
-    # the walls' pressure push at p_i = rho_i^2 / 2 without body force is -sum_virtual m grad W
     rho_i = rho[i]
-    _, fx, fy, fz = wall_terms(kernel, prm, True, wall_kind, wall_data, wall_tables, x[i, 0], x[i, 1], x[i, 2],
-                               0.5 * rho_i * rho_i, rho_i, 0.0 * rho_i, 0.0 * rho_i, 0.0 * rho_i)
-    wx = -fill[i] * fx
-    wy = -fill[i] * fy
-    wz = -fill[i] * fz
+    wx, wy, wz = wall_density_gradient(kernel, prm, wall_kind, wall_data, wall_tables, x, i, rho_i, fill[i])
     wgrad[i, 0] = wx
     wgrad[i, 1] = wy
     wgrad[i, 2] = wz
