@@ -6,12 +6,20 @@ Monaghan 1992 (section 10) and Morris et al. 1997 (eqs. 29-30), with h = H/2 the
     force     dt_f = cfl * sqrt(h / max|a|)
     viscous   dt_v = cfl * 0.5 * h^2 / nu        (physical viscosity models only)
     shifting  dt_s = cfl * h / (A max|v|)        (particle shifting only)
+    displacement dt_d = min(L / max|v|, sqrt(L / max|a|))   (DFSPH only: no particle moves more
+                                                 than ~L in a step, by its velocity or its acceleration)
 
 The shifting limit: Fickian shifting (physics/shifting.py) moves particles with the drift velocity
 -A h |v| grad C, a diffusion of the particle concentration with diffusivity ~A h |v|. Like any
 explicit diffusion it is stable only while A |v| dt / h stays small; with a speed of sound in the
 acoustic limit WCSPH never gets there, but DFSPH's flow-speed step does: the Taylor-Green vortex
 with A = 8 blew up at DFSPH's step (A |v| dt / h = 2) and ran at A = 1 (0.25).
+
+The displacement limit: DFSPH predicts a particle's density linearly in dt, and the analytic walls'
+share of it is far from linear within a spacing of the wall; particles that move a good part of a
+spacing in one step cross walls (found behind them and pushed back by the collision guard). It is
+not scaled by cfl: it is where walls stop working, whatever the accuracy asked for
+(dfsph.MAX_DISPLACEMENT).
 
 The adaptive step is the smallest of these and the scene's ``time.dt`` (the largest allowed step);
 the name of the binding limit is reported so users see what limits their run. An incompressible
@@ -20,11 +28,11 @@ condition dt = cfl * h / max|v|.
 """
 import math
 
-LIMITS = ("acoustic", "force", "viscous", "shifting", "max", "fixed", "until")
+LIMITS = ("acoustic", "force", "viscous", "shifting", "displacement", "max", "fixed", "until")
 
 
 def choose_dt(mode: str, dt: float, cfl: float, h: float, c0: float, vmax: float, amax: float,
-              nu: float, shift_a: float = 0.0) -> tuple[float, str]:
+              nu: float, shift_a: float = 0.0, max_step_length: float = 0.0) -> tuple[float, str]:
     """(dt, name of the binding limit) for mode 'fixed' or 'adaptive'."""
     if mode == "fixed":
         return dt, "fixed"
@@ -44,4 +52,9 @@ def choose_dt(mode: str, dt: float, cfl: float, h: float, c0: float, vmax: float
         shifting = cfl * h / (shift_a * vmax)
         if shifting < best:
             best, name = shifting, "shifting"
+    if max_step_length > 0.0:
+        displacement = min(max_step_length / vmax if vmax > 0.0 else math.inf,
+                           math.sqrt(max_step_length / amax) if amax > 0.0 else math.inf)
+        if displacement < best:
+            best, name = displacement, "displacement"
     return best, name

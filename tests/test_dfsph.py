@@ -178,3 +178,21 @@ def test_closed_flow_solves_against_its_mean_density():
     tank = Simulation(scene("hydrostatic_2d", "particles.spacing=0.05", *DFSPH), "f64")
     tank.step()
     assert tank.rho_ref == 1000.0
+
+
+def test_dfsph_steps_move_no_particle_more_than_a_quarter_spacing():
+    from sphcore.physics.dfsph import MAX_DISPLACEMENT
+    from sphcore.timestep import choose_dt
+    L = MAX_DISPLACEMENT * 0.01
+    # A fast flow: the flow CFL step (cfl h / |v|, c0 = 0) would move particles cfl h = 1.15 spacings
+    assert choose_dt("adaptive", 1.0, 1.0, 0.0115, 0.0, 2.0, 0.0, 0.0, 0.0, L) == (L / 2.0, "displacement")
+    # A fluid starting from rest under gravity: the acceleration sets it (a dt^2 = L)
+    dt, limit = choose_dt("adaptive", 1.0, 1.0, 0.0115, 0.0, 0.0, 9.81, 0.0, 0.0, L)
+    assert limit == "displacement" and dt == pytest.approx((L / 9.81) ** 0.5)
+    # WCSPH passes no step length: its acoustic step is far shorter anyway
+    assert choose_dt("adaptive", 1.0, 1.0, 0.0115, 30.0, 2.0, 9.81, 0.0)[1] == "acoustic"
+    # In a run the limit binds where the CFL number alone would let particles cross walls
+    sim = Simulation(scene("dam_break", "particles.spacing=0.04", "time.dt=0.1", "time.cfl=2.0", *DFSPH), "f64")
+    for _ in range(60):
+        sim.step()
+    assert sim.limit_counts["displacement"] > 50 and sim.leaks == 0

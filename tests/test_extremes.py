@@ -21,7 +21,7 @@ from conftest import CONFIGS
 
 TINY = CONFIGS / "tiny.toml"
 DIAGNOSTIC = re.compile(r"^step \d+ \(t = [^)]+\): (.+); particles \d+")
-CAUSES = ("NaN or Inf", "density ratio", "speed of sound", "CFL violation")
+CAUSES = ("NaN or Inf", "density ratio", "speed of sound", "CFL violation", "time step collapsed")
 
 
 def run(overrides=(), precision="f64", steps=12, place=None):
@@ -90,6 +90,15 @@ MATRIX = (
     + [(name, over, p) for name, over in (("xsph=1", ["terms.xsph=1.0"]), ("shifting=10", ["terms.shifting=10.0"]),
                                           ("surface_tension=1e3", ["terms.surface_tension=1000.0"]),
                                           ("vorticity=10", ["terms.vorticity_confinement=10.0"]))
+       for p in PRECISIONS]
+    # the carried density (delta-SPH) and the incompressible solver at their own extremes
+    + [(f"continuity,{name}", ["sph.density='continuity'", *over], p)
+       for name, over in (("delta=0", ["sph.delta=0"]), ("delta=1", ["sph.delta=1.0"]), ("cfl=2", ["time.cfl=2.0"]),
+                          ("c0=2", ["sph.sound_speed=2.0"]))
+       for p in PRECISIONS]
+    + [(f"dfsph,{name}", ["sph.solver='dfsph'", "time.dt=0.01", *over], p)
+       for name, over in (("cfl=0.25", []), ("cfl=2", ["time.cfl=2.0"]), ("tolerance=0.5", ["sph.density_tolerance=0.5"]),
+                          ("max_iterations=1", ["sph.max_iterations=1"]))
        for p in PRECISIONS]
 )
 
