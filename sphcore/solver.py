@@ -20,7 +20,7 @@ from sphcore.choices import EOSES, INTEGRATORS, KERNELS, VISCOSITIES, Integrator
 from sphcore.halo import NULL_HALO
 from sphcore.initial import generate_particles
 from sphcore.params import make_params
-from sphcore.physics.dfsph import ERROR_QUANTUM, MAX_DISPLACEMENT, MIN_ITERATIONS, reference_density, relaxation
+from sphcore.physics.dfsph import ERROR_QUANTUM, MIN_ITERATIONS, reference_density, relaxation, step_length
 from sphcore.physics.external import ramp_factor
 from sphcore.physics.kernels import kernel_constants, w
 from sphcore.scene import Scene
@@ -378,13 +378,13 @@ class Simulation:
                        f"sph.sound_speed = {c0:g} m/s): energy blow-up; raise sph.sound_speed or shorten the "
                        "time step", rows="fastest")
         shift_a = self.scene.terms.shifting
-        step_length = MAX_DISPLACEMENT * self.scene.particles.spacing if self.dfsph else 0.0
+        travel = step_length(self.scene.particles.spacing, self.scene.boundary.gap) if self.dfsph else 0.0
         dt, limit = choose_dt(tm.mode, tm.dt, tm.cfl, self.h, c0, math.sqrt(vmax2), math.sqrt(amax2), self.nu,
-                              shift_a, step_length)
+                              shift_a, travel)
         if tm.mode == "fixed":
             # the explicit scheme's stability limit is CFL ~ 1; a fixed step beyond it diverges
             bound, name = choose_dt("adaptive", math.inf, CFL_LIMIT, self.h, c0, math.sqrt(vmax2),
-                                    math.sqrt(amax2), self.nu, shift_a, step_length)
+                                    math.sqrt(amax2), self.nu, shift_a, travel)
             if dt > bound:
                 self._fail(f"CFL violation: time.dt = {dt:.3g} s exceeds the {name} stability limit "
                            f"{bound:.3g} s (CFL {CFL_LIMIT:g}); use a smaller time.dt or time.mode = 'adaptive'",

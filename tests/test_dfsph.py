@@ -180,15 +180,18 @@ def test_closed_flow_solves_against_its_mean_density():
     assert tank.rho_ref == 1000.0
 
 
-def test_dfsph_steps_move_no_particle_more_than_a_quarter_spacing():
-    from sphcore.physics.dfsph import MAX_DISPLACEMENT
+def test_dfsph_steps_keep_particles_off_the_walls():
+    from sphcore.physics.dfsph import step_length
     from sphcore.timestep import choose_dt
-    L = MAX_DISPLACEMENT * 0.01
+    # The step length stays below the collision guard's distance (0.25 spacings by default)
+    L = step_length(0.01, 0.25)
+    assert L == pytest.approx(0.2 * 0.01)
+    assert step_length(0.01, 0.0) == pytest.approx(0.25 * 0.01)  # no guard: a quarter spacing
     # A fast flow: the flow CFL step (cfl h / |v|, c0 = 0) would move particles cfl h = 1.15 spacings
     assert choose_dt("adaptive", 1.0, 1.0, 0.0115, 0.0, 2.0, 0.0, 0.0, 0.0, L) == (L / 2.0, "displacement")
-    # A fluid starting from rest under gravity: the acceleration sets it (a dt^2 = L)
-    dt, limit = choose_dt("adaptive", 1.0, 1.0, 0.0115, 0.0, 0.0, 9.81, 0.0, 0.0, L)
-    assert limit == "displacement" and dt == pytest.approx((L / 9.81) ** 0.5)
+    # Velocity and acceleration together: |v| dt + |a| dt^2 = L
+    dt, limit = choose_dt("adaptive", 1.0, 1.0, 0.0115, 0.0, 2.0, 9.81, 0.0, 0.0, L)
+    assert limit == "displacement" and 2.0 * dt + 9.81 * dt * dt == pytest.approx(L)
     # WCSPH passes no step length: its acoustic step is far shorter anyway
     assert choose_dt("adaptive", 1.0, 1.0, 0.0115, 30.0, 2.0, 9.81, 0.0)[1] == "acoustic"
     # In a run the limit binds where the CFL number alone would let particles cross walls

@@ -75,13 +75,21 @@ D_FLOOR = 1.0
 # by the many particles that need no correction, so without a minimum a thin compressed layer at a
 # wall would never be corrected.
 MIN_ITERATIONS = 2
-# No particle moves more than about this many spacings in one step (timestep.py, "displacement": by
-# its velocity, dt <= L / max|v|, and by its acceleration, dt <= sqrt(L / max|a|)). The density
-# prediction rho* = rho + dt D rho/Dt is linear in dt, the wall's share Phi(d) is not. Wall crossings
-# (particles found behind a wall and pushed back) in the 2D dam break to t = 1.5 s at CFL 0.25 / 0.4
-# / 1.0: without the limit 0 / 4 / 52; L = 0.3: 0 / 1 / 2; L = 0.25: 0 / 0 / 0 (26 % more steps than
-# no limit at CFL 0.25); L = 0.2: 0 / 0 / 0 (53 % more).
-MAX_DISPLACEMENT = 0.25
+# How far a particle may move in one step (timestep.py, "displacement": max|v| dt + max|a| dt^2 <= L).
+# The density prediction rho* = rho + dt D rho/Dt is linear in dt, the wall's share Phi(d) is not, and
+# DFSPH's wall push acts only through the solve: fast particles crossed walls (found behind them and
+# pushed back by the collision guard). L stays below the guard's distance (boundary.gap spacings), so
+# that a particle the guard holds there cannot reach the wall in one step. Measured wall crossings:
+# 2D dam break to t = 1.5 s at CFL 0.25 / 0.4 / 1.0 without the limit 0 / 4 / 52; tiny scene, 300
+# steps at density tolerance 0.5 / 0.01 with L = 0.25 spacings in each of v dt and a dt^2: 2 / 2; with
+# this bound at L = 0.8 gap = 0.2 spacings: 0 / 0.
+MAX_DISPLACEMENT = 0.25   # spacings, when the scene has no guard distance (boundary.gap = 0)
+GAP_SHARE = 0.8
+
+
+def step_length(dx: float, gap: float) -> float:
+    """L in m for a spacing dx and the guard distance ``gap`` (in spacings)."""
+    return (GAP_SHARE * gap if gap > 0.0 else MAX_DISPLACEMENT) * dx
 ERROR_CAP = 16.0
 
 
