@@ -19,9 +19,9 @@ surface and the walls; Fourtakas et al. subtract the hydrostatic part of each pa
 a column at hydrostatic rest has no diffusion at all. rho^H_ji here is the density step of the
 hydrostatic pressure step rho g . x_ji at the pair's own state, with the EOS's local c^2 = dp/drho
 (eos.sound_speed_sq): Fourtakas et al. take it at rho0, which for Tait (c^2 = c0^2 (rho/rho0)^6) is
-off by 6 (rho/rho0 - 1), 3 % at the floor of a 0.5 m tank with c0 = 31 m/s; measured there, the
-rho0 form left a settled pressure profile 2 % (of rho0 g H) off the line. The pair's mean density
-keeps rho^H_ji antisymmetric (mass is conserved). Only gravity enters it (the body force a column at
+off by 6 (rho/rho0 - 1), 3 % at the floor of a 0.5 m tank with c0 = 31 m/s (on that tank the two
+forms settled to the same profile within the measurement; the local one is the exact step). The
+pair's mean density keeps rho^H_ji antisymmetric (mass is conserved). Only gravity enters it (the body force a column at
 rest balances).
 
 Walls: the analytic wall's share of the density, rho0 Phi(d_i) theta_i (walls.py), changes as the
