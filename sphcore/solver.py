@@ -97,7 +97,7 @@ class Simulation:
         self.periodic = int(self.grid.periodic)
         nu = sph.nu if self.viscosity in (Viscosity.MULLER, Viscosity.MORRIS) else 0.0
         self.nu = nu
-        dfsph = sph.solver == "dfsph"
+        self.dfsph = dfsph = sph.solver == "dfsph"
         self.prm = make_params(
             dtype, H=self.H, h=self.h, s_w=s_w, s_g=s_g, s_l=s_l, w0=w(int(self.kernel), 0.0, self.H, s_w),
             rho0=rho0, c0=sph.sound_speed, clamp_negative=bool(sph.clamp_negative_pressure), alpha=sph.alpha,
@@ -118,7 +118,6 @@ class Simulation:
         self.use_drift = self.use_xsph or self.use_shifting  # the drift uses v + dv
         self.use_surface_tension = scene.terms.surface_tension > 0.0
         self.use_vorticity = scene.terms.vorticity_confinement > 0.0
-        self.dfsph = sph.solver == "dfsph"
         self.continuity = sph.density == "continuity"
         self.use_diffusion = self.continuity and sph.delta > 0.0
         self.use_divergence_solve = self.dfsph and sph.divergence_tolerance > 0.0

@@ -38,3 +38,22 @@ def settled_pressure_profile(sim, until, x_range, y_range):
     inside = (x > x_range[0]) & (x < x_range[1]) & (y > y_range[0]) & (y < y_range[1])
     slope, intercept = np.polyfit(y[inside], p[inside], 1)
     return slope, -intercept / slope
+
+
+def one_process_and_two_peers(sc, steps=40):
+    """Run scene ``sc`` for ``steps`` steps in one process and on two in-process peers (split in x);
+    assert that ids, x, v and rho are bitwise equal; return (the one Simulation, the cluster)."""
+    import numpy as np
+
+    from nodes.cluster import InProcessCluster
+    from sphcore.solver import Simulation
+    one = Simulation(sc, "f64")
+    cluster = InProcessCluster(sc, 2, "f64", dims=(2, 1, 1))
+    for _ in range(steps):
+        one.step()
+        cluster.step()
+    ref, got = one.final_arrays(), cluster.final_arrays()
+    assert np.array_equal(ref["id"], got["id"])
+    for key in ("x", "v", "rho"):
+        assert np.array_equal(ref[key], got[key]), key
+    return one, cluster

@@ -3,12 +3,11 @@ larger steps than WCSPH, the same bits on one process or several, kappa through 
 import numpy as np
 import pytest
 
-from nodes.cluster import InProcessCluster
 from sphcore import checkpoint
 from sphcore.scene import SceneError
 from sphcore.solver import Simulation, SimulationError
 
-from conftest import scene
+from conftest import one_process_and_two_peers, scene
 
 DFSPH = ("sph.solver='dfsph'", "sph.density='summation'")  # some scenes integrate their density
 
@@ -83,18 +82,9 @@ def test_its_time_step_is_limited_by_the_flow_not_by_sound():
 
 def test_two_peers_give_the_same_bits_as_one_process():
     # Given a 3D dam break with DFSPH in one process and on two in-process peers
-    sc = scene("dam_break", "particles.spacing=0.04", "time.dt=0.004", *DFSPH)
-    one = Simulation(sc, "f64")
-    cluster = InProcessCluster(sc, 2, "f64", dims=(2, 1, 1))
-    for _ in range(40):
-        one.step()
-        cluster.step()
-    ref, got = one.final_arrays(), cluster.final_arrays()
     # Then every array is identical: the solver's iterations exchange lambda and v* through the halo
     # and its error sum is exact, so both take the same number of iterations
-    assert np.array_equal(ref["id"], got["id"])
-    for key in ("x", "v", "rho"):
-        assert np.array_equal(ref[key], got[key]), key
+    one, cluster = one_process_and_two_peers(scene("dam_break", "particles.spacing=0.04", "time.dt=0.004", *DFSPH))
     assert sum(h.bytes_sent.get("solver", 0) for h in cluster.halos) > 0
     assert cluster.peers[0].solver_stats["density"]["iterations"] == one.solver_stats["density"]["iterations"]
 
