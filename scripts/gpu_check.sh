@@ -1,0 +1,76 @@
+#!/usr/bin/env bash
+# Every GPU check in one go, for a machine with an NVIDIA GPU (a lent one is held for minutes only):
+#   1. the CPU/CUDA parity cases of tests/cuda_parity.py, in parallel (each compiles its own kernels),
+#      checked against the tolerances of tests/test_cuda.py;
+#   2. 200 steps on the GPU against 200 on the CPU (tests/test_cuda.py::test_long_gpu_run...);
+#   3. the GPU benchmark (sph bench --backend cuda), and the same scene on all CPU cores for the ratio.
+#
+#   bash scripts/gpu_check.sh OUTDIR [SIZES...]     (default sizes: 100000 1000000 2000000)
+#
+# PY selects the interpreter (default: .venv/bin/python if present, else python3). Writes OUTDIR/log.txt,
+# OUTDIR/parity.json, OUTDIR/gpu.json and OUTDIR/cpu.json; every step runs even when one before failed.
+set -u
+OUTDIR=${1:-runs/gpu}
+shift || true
+SIZES=${*:-100000 1000000 2000000}
+mkdir -p "$OUTDIR"
+if [ -z "${PY:-}" ]; then
+    if [ -x .venv/bin/python ]; then PY=.venv/bin/python; else PY=python3; fi
+fi
+export PYTHONUNBUFFERED=1
+LOG="$OUTDIR/log.txt"
+TMP=$(mktemp -d)
+say() { echo "== $(date -u +%H:%M:%S) $*" | tee -a "$LOG"; }
+
+say "machine"
+{ nvidia-smi --query-gpu=name,driver_version,memory.total,clocks.max.sm --format=csv
+  nproc
+  $PY -c "import sys, numpy, numba, numba_cuda; print(sys.version.split()[0], 'numpy', numpy.__version__,
+'numba', numba.__version__, 'numba-cuda', numba_cuda.__version__)"
+  $PY -c "from sphcore.backends import cuda; print(cuda.probe())"; } >>"$LOG" 2>&1
+
+say "parity cases, in parallel"
+CASES=${CASES:-$($PY -c "import sys; sys.argv=['x']; sys.path.insert(0, 'tests'); import cuda_parity; print(' '.join(cuda_parity.CASES))")}
+for c in $CASES; do
+    ( NUMBA_NUM_THREADS=2 SPH_CACHE_DIR="$TMP/cache_$c" timeout 240 $PY tests/cuda_parity.py "$c" \
+        >"$TMP/$c.json" 2>"$TMP/$c.log"; echo "$c exit $?" >>"$TMP/$c.log" ) &
+done
+wait
+for c in $CASES; do tail -n 3 "$TMP/$c.log" >>"$LOG"; done
+$PY - "$TMP" "$OUTDIR/parity.json" $CASES >>"$LOG" 2>&1 <<'EOF'
+import json, sys
+from pathlib import Path
+sys.path.insert(0, "tests")
+from test_cuda import TOL
+tmp, out, cases = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3:]
+results, bad = {}, []
+for c in cases:
+    try:
+        results[c] = json.loads((tmp / f"{c}.json").read_text().strip().splitlines()[-1])[c]
+    except Exception as exc:  # a crashed case: its log says why
+        results[c] = {"error": repr(exc)}
+        bad.append(c)
+        continue
+    r = results[c]
+    precision = "f32" if c.endswith("f32") else "f64"
+    metrics = r.get("steps", r)
+    for f, tol in TOL[precision].items():
+        if f in metrics and metrics[f] > tol:
+            bad.append(f"{c}.{f}={metrics[f]:.3g} > {tol:g}")
+out.write_text(json.dumps(results, indent=1))
+print("parity:", "PASS" if not bad else "FAIL " + ", ".join(bad))
+EOF
+
+say "long run: 200 steps GPU vs CPU"
+SPH_CACHE_DIR="$TMP/cache_tiny_f64" timeout 150 $PY -m pytest -q -p no:cacheprovider -m gpu \
+    "tests/test_cuda.py::test_long_gpu_run_stays_close_to_cpu" >>"$LOG" 2>&1
+
+say "GPU benchmark: sizes $SIZES"
+SPH_CACHE_DIR="$TMP/cache_bench" timeout 240 $PY -m launch.cli bench --backend cuda --sizes $SIZES \
+    --precisions f32 f64 --steps ${STEPS:-200} --json "$OUTDIR/gpu.json" >>"$LOG" 2>&1
+
+say "CPU benchmark on $(nproc) cores: 1000000 particles"
+SPH_CACHE_DIR="$TMP/cache_bench" timeout 120 $PY -m launch.cli bench --sizes 1000000 --precisions f32 \
+    --threads "$(nproc)" --steps 20 --json "$OUTDIR/cpu.json" >>"$LOG" 2>&1
+say "done"
+rm -rf "$TMP"
