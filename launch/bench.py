@@ -43,9 +43,21 @@ def spacing_for(scene_path: Path, target: int) -> float:
     return float((volume / target) ** (1.0 / dim))
 
 
+def fixed_dt(scene_path: Path, dx: float) -> float:
+    """The benchmark's fixed step: 1e-4 s, or half the acoustic limit h / c0 at spacing ``dx`` when
+    that is shorter (from about 1 M particles up), so that fine cases stay stable as the column falls."""
+    sph = load_scene(scene_path).sph
+    h = 0.5 * sph.support * dx
+    return min(1e-4, 0.5 * h / sph.sound_speed)
+
+
+def _fixed(scene_path: Path, dx: float) -> list[str]:
+    return [f"particles.spacing={dx!r}", "time.mode='fixed'", f"time.dt={fixed_dt(scene_path, dx)!r}"]
+
+
 def bench_case(scene_path: Path, dx: float, precision: str, threads: int, steps: int, backend: str = "cpu") -> dict:
     numba.set_num_threads(threads)
-    scene = load_scene(scene_path, [f"particles.spacing={dx!r}", "time.mode='fixed'", "time.dt=1e-4"])
+    scene = load_scene(scene_path, _fixed(scene_path, dx))
     sim = Simulation(scene, precision, backend)
     t0 = time.perf_counter()
     sim.step()  # compile or load the cache
@@ -120,9 +132,9 @@ def _peer_cases(scene_path: Path, dx: float, args) -> list[dict]:
                 with tempfile.TemporaryDirectory() as tmp:
                     cmd = [sys.executable, "-m", "launch.cli", "run", str(scene_path), "--peers", str(peers),
                            "--threads", str(threads), "--steps", str(args.steps + 1), "--precision", precision,
-                           "--out", tmp, "--quiet", "--set", f"particles.spacing={dx!r}",
-                           "--set", "time.mode='fixed'", "--set", "time.dt=1e-4",
-                           "--set", "decomposition.balance_every=50"]
+                           "--out", tmp, "--quiet", "--set", "decomposition.balance_every=50"]
+                    for kv in _fixed(scene_path, dx):
+                        cmd += ["--set", kv]
                     done = subprocess.run(cmd, capture_output=True, text=True)
                     if done.returncode != 0:
                         print(f"  {peers} peers: failed ({done.returncode}): {done.stderr[-2000:]}", file=sys.stderr)

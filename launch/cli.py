@@ -268,6 +268,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s", datefmt="%H:%M:%S")
+    # numba-cuda logs every device allocation and free at INFO: keep it to warnings unless --verbose
+    logging.getLogger("numba").setLevel(logging.INFO if args.verbose else logging.WARNING)
     from nodes.zenoh_transport import TransportError
     from sphcore.backends import BackendUnavailable
     from sphcore.scene import SceneError
