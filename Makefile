@@ -3,7 +3,7 @@
 #   make test   set up .venv and run the default test suite
 # Others:
 #   make test-slow     the heavier suites (pytest -m slow)
-#   make test-gpu      the CUDA tests on a real GPU (pytest -m gpu) and a short GPU benchmark
+#   make test-gpu      on a machine with a GPU: CPU/CUDA parity, a 200-step run, the GPU benchmark (runs/gpu/log.txt)
 #   make bench         sph bench (add the reference codes with: bash scripts/setup_bench.sh; make bench-external)
 
 PY := .venv/bin/python
@@ -24,8 +24,7 @@ test-slow: setup
 	$(PY) -m pytest -m slow
 
 test-gpu: setup
-	$(PY) -m pytest -m gpu tests/test_cuda.py
-	$(SPH) bench --backend cuda --sizes 100000 1000000 --precisions f32 f64 --steps 200
+	bash scripts/gpu_check.sh runs/gpu
 
 bench: setup
 	$(SPH) bench --json runs/bench/bench.json

@@ -8,7 +8,8 @@
 #   bash scripts/gpu_check.sh OUTDIR [SIZES...]     (default sizes: 100000 1000000 2000000)
 #
 # PY selects the interpreter (default: .venv/bin/python if present, else python3). Writes OUTDIR/log.txt,
-# OUTDIR/parity.json, OUTDIR/gpu.json and OUTDIR/cpu.json; every step runs even when one before failed.
+# OUTDIR/parity.json, OUTDIR/gpu.json and OUTDIR/cpu.json; every step runs even when one before failed,
+# and the exit status is 1 if any failed.
 set -u
 OUTDIR=${1:-runs/gpu}
 shift || true
@@ -20,6 +21,7 @@ fi
 export PYTHONUNBUFFERED=1
 LOG="$OUTDIR/log.txt"
 TMP=$(mktemp -d)
+status=0
 say() { echo "== $(date -u +%H:%M:%S) $*" | tee -a "$LOG"; }
 
 say "machine"
@@ -53,24 +55,30 @@ for c in cases:
         continue
     r = results[c]
     precision = "f32" if c.endswith("f32") else "f64"
-    metrics = r.get("steps", r)
-    for f, tol in TOL[precision].items():
-        if f in metrics and metrics[f] > tol:
-            bad.append(f"{c}.{f}={metrics[f]:.3g} > {tol:g}")
+    for part in (r, r.get("stage", {}), r.get("steps", {})):
+        for flag in ("same_particles", "same_order", "same_counts", "same_neighbour_lists"):
+            if flag in part and not part[flag]:
+                bad.append(f"{c}.{flag}")
+        for f, tol in TOL[precision].items():
+            if f in part and part[f] > tol:
+                bad.append(f"{c}.{f}={part[f]:.3g} > {tol:g}")
 out.write_text(json.dumps(results, indent=1))
 print("parity:", "PASS" if not bad else "FAIL " + ", ".join(bad))
+sys.exit(1 if bad else 0)
 EOF
+[ $? -eq 0 ] || status=1
 
 say "long run: 200 steps GPU vs CPU"
 SPH_CACHE_DIR="$TMP/cache_tiny_f64" timeout 150 $PY -m pytest -q -p no:cacheprovider -m gpu \
-    "tests/test_cuda.py::test_long_gpu_run_stays_close_to_cpu" >>"$LOG" 2>&1
+    "tests/test_cuda.py::test_long_gpu_run_stays_close_to_cpu" >>"$LOG" 2>&1 || status=1
 
 say "GPU benchmark: sizes $SIZES"
 SPH_CACHE_DIR="$TMP/cache_bench" timeout 240 $PY -m launch.cli bench --backend cuda --sizes $SIZES \
-    --precisions f32 f64 --steps ${STEPS:-200} --json "$OUTDIR/gpu.json" >>"$LOG" 2>&1
+    --precisions f32 f64 --steps ${STEPS:-200} --json "$OUTDIR/gpu.json" >>"$LOG" 2>&1 || status=1
 
 say "CPU benchmark on $(nproc) cores: 1000000 particles"
 SPH_CACHE_DIR="$TMP/cache_bench" timeout 120 $PY -m launch.cli bench --sizes 1000000 --precisions f32 \
-    --threads "$(nproc)" --steps 20 --json "$OUTDIR/cpu.json" >>"$LOG" 2>&1
-say "done"
+    --threads "$(nproc)" --steps 20 --json "$OUTDIR/cpu.json" >>"$LOG" 2>&1 || status=1
+say "done (status $status)"
 rm -rf "$TMP"
+exit $status
