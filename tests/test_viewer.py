@@ -108,5 +108,16 @@ def test_a_viewer_joins_a_running_run_and_sees_the_same_frames(tmp_path):
     assert joined.returncode == 0, joined.stderr
     mine, theirs = images(tmp_path / "joined.rrd"), images(tmp_path / "run" / "run.rrd")
     assert len(mine) >= 3 and max(mine) == 900 and min(mine) > 100
-    for step, im in mine.items():
-        assert np.array_equal(im, theirs[step]), step
+    # A frame whose second framelet came more than frame_timeout (2 s) after the first is composited
+    # incomplete, and marked so; on a loaded machine that can happen in one viewer and not the other
+    # (seen once in CI). Those frames differ by design; every complete frame must match bit for bit.
+    marked = incomplete_steps(tmp_path / "joined.rrd") | incomplete_steps(tmp_path / "run" / "run.rrd")
+    complete = [step for step in mine if step not in marked]
+    assert len(complete) >= len(mine) - 2 and len(complete) >= 3, marked
+    for step in complete:
+        assert np.array_equal(mine[step], theirs[step]), step
+
+
+def incomplete_steps(rrd: Path) -> set[int]:
+    import re
+    return {int(re.match(r"step (\d+):", t).group(1)) for t in text_logs(rrd, "/composite/status")}
