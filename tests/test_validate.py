@@ -30,7 +30,7 @@ def test_a_case_prints_its_metrics_writes_its_plot_and_sets_the_exit_code(tmp_pa
 
 def test_unknown_cases_are_refused(capsys):
     assert main(["validate", "sloshing"]) == 2
-    assert "choose from hydrostatic, dam_break, dam_break_3d, taylor_green, oscillating_drop, poiseuille" in capsys.readouterr().err
+    assert "choose from hydrostatic, hydrostatic_3d, dam_break, dam_break_3d, taylor_green, oscillating_drop, poiseuille" in capsys.readouterr().err
 
 
 def test_drop_reference_reproduces_the_published_period():
@@ -109,11 +109,21 @@ def test_poiseuille_quick_meets_its_tolerance(tmp_path, capsys):
     assert line[3] == "PASS" and rc == 0
 
 
+@pytest.mark.slow
+def test_hydrostatic_3d_quick_passes(tmp_path, capsys):
+    """The same tank extruded 0.1 m between two walls (3,125 particles, 4 s: about a minute)."""
+    assert main(["validate", "hydrostatic_3d", "--quick", "--out", str(tmp_path)]) == 0
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("hydrostatic_3d.")]
+    assert len(lines) == 4 and all(line.split()[3] == "PASS" for line in lines)
+    assert (tmp_path / "hydrostatic_3d.png").stat().st_size > 0
+
+
 def test_hydrostatic_quick_passes_and_set_overrides_reach_the_scene(tmp_path, capsys):
-    # The shipped tank (carried density, delta-SPH) meets all three tolerances at quick resolution
+    # The shipped tank (carried density, delta-SPH) meets all four tolerances at quick resolution
     assert main(["validate", "hydrostatic", "--quick", "--out", str(tmp_path)]) == 0
     lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("hydrostatic.")]
-    assert len(lines) == 3 and all(line.split()[3] == "PASS" for line in lines)
+    assert len(lines) == 4 and all(line.split()[3] == "PASS" for line in lines)
+    assert (tmp_path / "hydrostatic.png").stat().st_size > 0
     # With --set sph.density=summation the same case fails its single-particle metric (17 %)
     assert main(["validate", "hydrostatic", "--quick", "--out", str(tmp_path), "--set", "sph.density=summation"]) == 1
     out = capsys.readouterr().out
