@@ -63,15 +63,24 @@ class CaseOptions:
 
 
 class _Clock:
-    """Wall time of the stepping loop from the end of the first step."""
+    """Wall time of the stepping loop from the end of the first step; a progress line every
+    PROGRESS_S seconds (a full 3D case runs for tens of minutes)."""
+    PROGRESS_S = 30.0
 
-    def __init__(self, sim, opts: CaseOptions):
-        self.sim, self.opts, self.t0 = sim, opts, None
+    def __init__(self, sim, opts: CaseOptions, name: str, t_end: float):
+        self.sim, self.opts, self.name, self.t_end, self.t0 = sim, opts, name, t_end, None
 
     def tick(self):
-        if self.t0 is None and self.sim.step_index >= 1:
-            self.t0 = time.perf_counter()
-            self.steps0, self.time0 = self.sim.step_index, self.sim.t
+        sim = self.sim
+        if self.t0 is None and sim.step_index >= 1:
+            self.t0 = self.shown = time.perf_counter()
+            self.steps0, self.time0 = sim.step_index, sim.t
+        elif self.t0 is not None and time.perf_counter() - self.shown > self.PROGRESS_S:
+            self.shown = now = time.perf_counter()
+            rate = (sim.t - self.time0) / (now - self.t0)  # simulated s per wall s
+            left = (self.t_end - sim.t) / rate if rate > 0.0 else float("inf")
+            log.info("%s: t = %.3g of %.3g s, step %d, %d particles, about %.0f s left", self.name, sim.t,
+                     self.t_end, sim.step_index, sim.n_particles, left)
 
     def done(self):
         wall = time.perf_counter() - self.t0 if self.t0 is not None else float("nan")
@@ -113,9 +122,9 @@ def dam_break(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions | 
     usable = MARTIN_MOYCE_Z < (x_wall - 2 * dx) / a  # points before the front reaches the far wall
     t_exp, z_exp = MARTIN_MOYCE_T[usable], MARTIN_MOYCE_Z[usable]
     sim = Simulation(scene, opts.precision, opts.backend)
-    clock = _Clock(sim, opts)
-    times, fronts = [0.0], [1.0]
     t_end = t_exp[-1] / scale
+    clock = _Clock(sim, opts, name, t_end)
+    times, fronts = [0.0], [1.0]
     while sim.t < t_end:
         sim.step(dt_cap=t_end - sim.t)
         clock.tick()
@@ -156,7 +165,7 @@ def taylor_green(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions
     b = -8.0 * math.pi**2 * nu  # L = 1: Re = U L / nu
     t_end = 1.0
     sim = Simulation(scene, opts.precision, opts.backend)
-    clock = _Clock(sim, opts)
+    clock = _Clock(sim, opts, "taylor_green", t_end)
     times, vmax = [0.0], [float(np.max(np.linalg.norm(sim.state.v[:, :2], axis=1)))]
     while sim.t < t_end:
         sim.step(dt_cap=t_end - sim.t)
@@ -210,11 +219,11 @@ def hydrostatic(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions 
     name = "hydrostatic" if dim == 2 else "hydrostatic_3d"
     rho0, g = scene.fluid.rest_density, abs(scene.forces.gravity[1])
     sim = Simulation(scene, opts.precision, opts.backend)
-    clock = _Clock(sim, opts)
     # the initial square lattice reorganises under pressure: the kinetic energy grows after the ramp,
     # peaks near 1.5 s (2D) or 1.3 s (3D) and then decays, more slowly in 3D (quick resolution, mean
     # of the last 0.5 s against the peak: 2D 0.03 at 3 s; 3D 0.15 at 3 s)
     t_end = 3.0 if dim == 2 else 4.0
+    clock = _Clock(sim, opts, name, t_end)
     # Pressure, height and density of each particle averaged over 10 samples in the last 0.5 s: a
     # weakly compressible tank at rest still carries acoustic noise (single particles' pressure
     # moves by +-0.4 % of rho0 g H from sample to sample in the 3D tank), and the hydrostatic
@@ -324,7 +333,7 @@ def oscillating_drop(quick: bool, out: Path, backend: str = "cpu", opts: CaseOpt
     t_ref, a_ref, b_ref = drop_semi_axes(omega, rate, radius, t_end)
     ref_peaks = _maxima(t_ref, a_ref)
     sim = Simulation(scene, opts.precision, opts.backend)
-    clock = _Clock(sim, opts)
+    clock = _Clock(sim, opts, "oscillating_drop", t_end)
 
     def moments():
         x = sim.state.x[: sim.state.n_owned, :2] - c
@@ -398,8 +407,8 @@ def poiseuille(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions |
     y0 = scene.domain.center[1] - 0.5 * L
     u_max = F * L**2 / (8.0 * nu)
     sim = Simulation(scene, opts.precision, opts.backend)
-    clock = _Clock(sim, opts)
     times = (0.0225, 0.045, 0.1125, 0.225, 1.0)  # Morris et al.'s figure 2
+    clock = _Clock(sim, opts, "poiseuille", times[-1])
     profiles, worst = [], 0.0
     for t_out in times:
         while sim.t < t_out:
