@@ -208,6 +208,36 @@ HYDROSTATIC_3D = ("scene.dim=3", "fluid.blocks[0].min=[0,0,0]", "fluid.blocks[0]
                   "forces.external=[0,0,0]")
 
 
+def settle_and_average(sim, t_end: float, clock=None, samples: int = 10, window: float = 0.5):
+    """Step ``sim`` to ``t_end`` and average each particle's position, pressure and density over
+    ``samples`` evenly spaced refreshes in the last ``window`` seconds: a weakly compressible tank at
+    rest still carries acoustic noise (single particles' pressure moves by +-0.4 % of rho0 g H from
+    sample to sample in the 3D tank), and the hydrostatic pressure is the steady part.
+
+    Returns (times, kinetic energies of every step, (x (n, 3), p (n,), rho (n,)) in id order, mean
+    height of the highest particle)."""
+    times, ke, sums, tops = [], [], None, []
+    for k in range(samples):
+        t_mark = t_end - window + (window / samples) * (k + 1)
+        while sim.t < t_mark:
+            sim.step(dt_cap=t_mark - sim.t)
+            if clock is not None:
+                clock.tick()
+            times.append(sim.t)
+            ke.append(sim.kinetic_energy())
+        sim.refresh()
+        s = sim.state
+        n = s.n_owned
+        order = np.argsort(s.id[:n], kind="stable")
+        fields = (s.x[:n][order].astype(np.float64), s.p[:n][order].astype(np.float64),
+                  s.rho[:n][order].astype(np.float64))
+        sums = fields if sums is None else tuple(a + b for a, b in zip(sums, fields))
+        tops.append(float(np.max(s.x[:n, 1])))
+    if clock is not None:
+        clock.done()
+    return times, ke, tuple(a / samples for a in sums), float(np.mean(tops))
+
+
 def hydrostatic(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions | None = None,
                 dim: int = 2) -> list[Metric]:
     """Still water settling in a tank (2D, or 3D: extruded between two walls): pressure against
@@ -224,28 +254,9 @@ def hydrostatic(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions 
     # of the last 0.5 s against the peak: 2D 0.03 at 3 s; 3D 0.15 at 3 s)
     t_end = 3.0 if dim == 2 else 4.0
     clock = _Clock(sim, opts, name, t_end)
-    # Pressure, height and density of each particle averaged over 10 samples in the last 0.5 s: a
-    # weakly compressible tank at rest still carries acoustic noise (single particles' pressure
-    # moves by +-0.4 % of rho0 g H from sample to sample in the 3D tank), and the hydrostatic
-    # pressure is the steady part
-    samples = [t_end - 0.5 + 0.05 * (k + 1) for k in range(10)]
-    times, ke, sums, tops = [], [], None, []
-    for t_mark in samples:
-        while sim.t < t_mark:
-            sim.step(dt_cap=t_mark - sim.t)
-            clock.tick()
-            times.append(sim.t)
-            ke.append(sim.kinetic_energy())
-        sim.refresh()
-        s = sim.state
-        n = s.n_owned
-        order = np.argsort(s.id[:n], kind="stable")
-        fields = np.stack([s.x[:n, 1][order], s.p[:n][order], s.rho[:n][order]]).astype(np.float64)
-        sums = fields if sums is None else sums + fields
-        tops.append(float(np.max(s.x[:n, 1])))
-    clock.done()
-    y, p, rho = sums / len(samples)
-    H = float(np.mean(tops)) + 0.5 * dx  # free surface: half a spacing above the top particles
+    times, ke, (x, p, rho), top = settle_and_average(sim, t_end, clock)
+    y = x[:, 1]
+    H = top + 0.5 * dx  # free surface: half a spacing above the top particles
     interior = y < H - 3 * dx        # below the surface layer, whose support is cut
     ref = rho0 * g * (H - y)
     err = float(np.max(np.abs(p[interior] - ref[interior])) / (rho0 * g * H))

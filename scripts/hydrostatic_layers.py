@@ -16,7 +16,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from launch.validate import CONFIGS, HYDROSTATIC_3D  # noqa: E402
+from launch.validate import CONFIGS, HYDROSTATIC_3D, settle_and_average  # noqa: E402
 from sphcore.scene import load_scene  # noqa: E402
 from sphcore.solver import Simulation  # noqa: E402
 
@@ -32,19 +32,9 @@ def main():
     lo = np.array(scene.domain.center) - 0.5 * np.array(scene.domain.size)
     hi = np.array(scene.domain.center) + 0.5 * np.array(scene.domain.size)
     sim = Simulation(scene, "f64", "cpu")
-    sums, tops = None, []
-    for t_mark in [args.t_end - 0.5 + 0.05 * (k + 1) for k in range(10)]:
-        while sim.t < t_mark:
-            sim.step(dt_cap=t_mark - sim.t)
-        sim.refresh()
-        s = sim.state
-        n = s.n_owned
-        order = np.argsort(s.id[:n], kind="stable")
-        fields = np.concatenate([s.x[:n][order].T, s.p[:n][order][None]]).astype(np.float64)
-        sums = fields if sums is None else sums + fields
-        tops.append(float(np.max(s.x[:n, 1])))
-    x, y, z, p = sums / 10
-    H = float(np.mean(tops)) + 0.5 * dx
+    _, _, (pos, p, _), top = settle_and_average(sim, args.t_end)
+    x, y, z = pos.T
+    H = top + 0.5 * dx
     below = y < H - 3 * dx  # the metric's particles: below the surface layer
     err = (p - rho0 * g * (H - y)) / (rho0 * g * H)
     near_x = np.minimum(x - lo[0], hi[0] - x) < 1.5 * dx
