@@ -138,11 +138,14 @@ def test_device_only_with_cuda(tmp_path):
 def test_parity_on_a_real_gpu():
     results = _parity(simulator=False)
     assert results["tiny_f64"]["same_neighbour_lists"]
+    _check(results["tiny_f64"]["stage"], "f64", ("rho", "p", "a"))
     _check(results["tiny_f64"]["steps"], "f64")
     _check(results["tiny_f32"], "f32")
-    for case in ("terms_f64", "periodic_f64", "obstacle_f64"):
+    for case in ("terms_f64", "periodic_f64", "obstacle_f64", "dfsph_f64", "continuity_f64"):
         _check(results[case], "f64")
-    _check(results["peers_f64"], "f64", ("x", "v", "rho"))
+    for case in ("peers_f64", "dfsph_peers_f64"):
+        assert results[case]["ghosts"] > 0
+        _check(results[case], "f64", ("x", "v", "rho"))
 
 
 @pytest.mark.gpu
