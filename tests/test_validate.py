@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from launch.cli import main
-from launch.validate import (CONFIGS, MARTIN_MOYCE_T, MARTIN_MOYCE_Z, Metric, _maxima, drop_semi_axes,
-                             poiseuille_velocity, run_validate)
+from launch.validate import (CONFIGS, MARTIN_MOYCE_T, MARTIN_MOYCE_Z, RELEASE_DELAY_MAX_T, Metric, _maxima,
+                             drop_semi_axes, fit_release_delay, front_rms, poiseuille_velocity, run_validate)
 
 
 def test_metric_verdicts():
@@ -22,10 +22,31 @@ def test_martin_moyce_data_is_the_digitized_table():
 def test_a_case_prints_its_metrics_writes_its_plot_and_sets_the_exit_code(tmp_path, capsys):
     rc = run_validate(["dam_break"], quick=True, out=tmp_path)
     lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("dam_break.")]
-    assert len(lines) == 1
-    verdict = lines[0].split()[3]
-    assert verdict in ("PASS", "FAIL") and rc == (0 if verdict == "PASS" else 1)
+    assert [line.split()[0] for line in lines] == ["dam_break.front_rms_relative", "dam_break.release_delay_T"]
+    verdicts = [line.split()[3] for line in lines]
+    assert set(verdicts) <= {"PASS", "FAIL"} and rc == (0 if verdicts == ["PASS", "PASS"] else 1)
     assert (tmp_path / "dam_break.png").stat().st_size > 10_000
+
+
+def _front(times, delay):
+    """A front that follows Martin & Moyce's points exactly, released ``delay`` earlier."""
+    return np.interp(times + delay, MARTIN_MOYCE_T, MARTIN_MOYCE_Z, left=1.0)
+
+
+def test_the_release_fit_recovers_a_known_delay_and_never_runs_the_experiment_early():
+    times = np.linspace(0.0, 10.0, 5001)
+    t, z = MARTIN_MOYCE_T[1:], MARTIN_MOYCE_Z[1:]
+    for delay in (0.0, 0.137, 0.42):
+        fronts = _front(times, delay)  # reaches each point `delay` early: a released-at-once front
+        assert fit_release_delay(t, z, times, fronts) == pytest.approx(delay, abs=2e-3)
+        assert front_rms(t, z, times, fronts, fit_release_delay(t, z, times, fronts)) < 1e-3
+        assert delay == 0.0 or front_rms(t, z, times, fronts) > 0.02  # unshifted, the lead shows
+    late = _front(times, -0.3)  # a front slower than the experiment: no release explains it
+    assert fit_release_delay(t, z, times, late) == 0.0
+    assert front_rms(t, z, times, late, 0.0) > 0.02
+    fast = 1.0 + 1.2 * (_front(times, 0.0) - 1.0)  # runs 20 % too far: no delay makes up for a wrong speed
+    assert front_rms(t, z, times, fast, fit_release_delay(t, z, times, fast)) > 0.05
+    assert fit_release_delay(t, z, times, 1.0 + 3.0 * (_front(times, 0.0) - 1.0)) <= 2.0 * RELEASE_DELAY_MAX_T
 
 
 def test_unknown_cases_are_refused(capsys):
