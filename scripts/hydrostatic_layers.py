@@ -1,9 +1,11 @@
 """Where the settled 3D hydrostatic tank's pressure error sits: the error of each particle's pressure
 (averaged over the last 0.5 s, as ``sph validate hydrostatic_3d`` does) against rho0 g (H - y), split
 into the particle layers next to the floor, the side walls, the edges where two walls meet, and the
-interior.
+interior; then the mean error of the 10 depth layers (the profile metric's), against rho0 g (H - y)
+and against the hydrostatic pressure of the simulated compressible fluid (dp/dy = -rho(p) g with the
+scene's Tait EOS): the difference is what the weak compressibility alone accounts for.
 
-    python scripts/hydrostatic_layers.py [--dx 0.02] [--t-end 4.0]
+    python scripts/hydrostatic_layers.py [--dx 0.02] [--t-end 4.0] [--set KEY=VALUE ...]
 
 Prints, per group, the number of particles, the largest |error| and the mean error, in units of
 rho0 g H; the worst particle of each single sample (before averaging); then the five worst particles. The quick tank (dx = 0.02) takes about a minute on 2 cores.
@@ -21,13 +23,28 @@ from sphcore.scene import load_scene  # noqa: E402
 from sphcore.solver import Simulation  # noqa: E402
 
 
+def tait_hydrostatic(y, H, rho0, c0, g, steps=20000):
+    """Pressure at heights y of a Tait fluid (gamma = 7) at rest under gravity g with its surface at H:
+    dp/dy = -g rho0 (1 + 7 p / (rho0 c0^2))^(1/7), integrated down from p(H) = 0 (midpoint rule)."""
+    levels = np.linspace(H, min(0.0, float(np.min(y))), steps + 1)
+    p = np.zeros_like(levels)
+    B = rho0 * c0 * c0 / 7.0
+    for k in range(steps):
+        dy = levels[k] - levels[k + 1]
+        half = p[k] + 0.5 * g * rho0 * (1.0 + p[k] / B) ** (1.0 / 7.0) * dy
+        p[k + 1] = p[k] + g * rho0 * (1.0 + half / B) ** (1.0 / 7.0) * dy
+    return np.interp(y, levels[::-1], p[::-1])
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--dx", type=float, default=0.02, help="particle spacing in m (validate: 0.02 quick, 0.01 full)")
     ap.add_argument("--t-end", type=float, default=4.0, help="settling time in s (validate: 4)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="scene override, as sph validate --set (e.g. sph.support=2.3)")
     args = ap.parse_args()
     dx = args.dx
-    scene = load_scene(CONFIGS / "hydrostatic_2d.toml", [f"particles.spacing={dx}", *HYDROSTATIC_3D])
+    scene = load_scene(CONFIGS / "hydrostatic_2d.toml", [f"particles.spacing={dx}", *HYDROSTATIC_3D, *args.set])
     rho0, g = scene.fluid.rest_density, abs(scene.forces.gravity[1])
     lo = np.array(scene.domain.center) - 0.5 * np.array(scene.domain.size)
     hi = np.array(scene.domain.center) + 0.5 * np.array(scene.domain.size)
@@ -57,6 +74,19 @@ def main():
             print(f"{name:24s} n = {int(mask.sum()):6d}  max |error| = {np.max(np.abs(err[mask])):.4f}"
                   f"  mean error = {np.mean(err[mask]):+.4f}")
     print("single samples' worst particle: " + ", ".join(f"{e:.4f} at {t:.2f} s" for t, e in single))
+    bins = np.linspace(0.0, H - 3 * dx, 11)
+    layer = np.digitize(y, bins) - 1
+    compressible = (p - tait_hydrostatic(y, H, rho0, scene.sph.sound_speed, g)) / (rho0 * g * H)
+    for name, e in (("rho0 g (H - y)", err), ("compressible (Tait)", compressible)):
+        means = np.array([np.mean(e[layer == k]) if np.any(layer == k) else 0.0 for k in range(10)])
+        inside = below & (layer >= 0) & (layer < 10)
+        scatter = float(np.std(e[inside] - means[layer[inside]]))
+        print(f"depth layers' mean error, floor to surface, against {name}: "
+              + " ".join(f"{v:+.4f}" for v in means) + f"; max |error| {np.max(np.abs(e[below])):.4f}; "
+              f"scatter about the layer means {scatter:.4f} (std)")
+    rows = np.floor(y / dx).astype(int)  # particle rows, floor up
+    print("each particle row's mean error, floor up: "
+          + " ".join(f"{np.mean(err[rows == r]):+.4f}" for r in range(rows.max() + 1) if np.any(rows == r)))
     for i in np.argsort(-np.abs(np.where(below, err, 0.0)))[:5]:
         print(f"  x = {x[i]:.3f}  y = {y[i]:.3f}  z = {z[i]:.3f}  error = {err[i]:+.4f}")
 
