@@ -172,7 +172,8 @@ def dam_break(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions | 
                Metric(f"{name}.release_delay_T", delay, RELEASE_DELAY_MAX_T,
                       f"fitted; {1e3 * delay / math.sqrt(2.0 * g / MARTIN_MOYCE_A):.0f} ms at the experiment's "
                       f"a = 2.25 in")]
-    opts.stats.update(front_delay_T=delay, front_rms_unshifted=raw)
+    opts.stats.update(front_delay_T=delay, front_rms_unshifted=raw,
+                      front_at_points=np.interp(t_exp - delay, times, fronts).tolist())
     if not opts.plot:
         return metrics
     plt = _plot()
