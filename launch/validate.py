@@ -283,6 +283,13 @@ def settle_and_average(sim, t_end: float, clock=None, samples: int = 10, window:
     return times, ke, tuple(a / samples for a in sums), float(np.mean(tops))
 
 
+def depth_layers(y, H: float, dx: float, layers: int = 10):
+    """Index 0..layers-1 of the equal depth layer each height y falls in, from the floor (y = 0) to
+    three spacings under the surface H (the surface layer, whose support is cut, is left out: -1 below
+    the floor, ``layers`` above)."""
+    return np.digitize(y, np.linspace(0.0, H - 3 * dx, layers + 1)) - 1
+
+
 def hydrostatic(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions | None = None,
                 dim: int = 2) -> list[Metric]:
     """Still water settling in a tank (2D, or 3D: extruded between two walls): pressure against
@@ -307,8 +314,7 @@ def hydrostatic(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions 
     ref = rho0 * g * (H - y)
     err = float(np.max(np.abs(p[interior] - ref[interior])) / (rho0 * g * H))
     dev = float(np.max(np.abs(rho[interior] / rho0 - 1.0)))
-    bins = np.linspace(0.0, H - 3 * dx, 11)  # the depth profile: mean pressure in 10 layers
-    which = np.digitize(y, bins) - 1
+    which = depth_layers(y, H, dx)  # the depth profile: mean pressure in 10 layers
     profile = max(abs(float(np.mean(p[which == k]) - np.mean(ref[which == k]))) for k in range(10)
                   if np.any(which == k)) / (rho0 * g * H)
     # spurious motion must die out, not persist: the mean kinetic energy of the averaging window

@@ -24,7 +24,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from launch.validate import CONFIGS, HYDROSTATIC_3D, settle_and_average  # noqa: E402
+from launch.validate import CONFIGS, HYDROSTATIC_3D, depth_layers, settle_and_average  # noqa: E402
 from sphcore.scene import load_scene  # noqa: E402
 from sphcore.solver import Simulation  # noqa: E402
 
@@ -84,8 +84,7 @@ def main():
     print("kinetic energy (J), means over 0.5 s windows ending at: " + ", ".join(
         f"{t:g} s {np.mean(ke[(times > t - 0.5) & (times <= t)]):.2g}" for t in ends))
     print("single samples' worst particle: " + ", ".join(f"{e:.4f} at {t:.2f} s" for t, e in single))
-    bins = np.linspace(0.0, H - 3 * dx, 11)
-    layer = np.digitize(y, bins) - 1
+    layer = depth_layers(y, H, dx)
     compressible = (p - tait_hydrostatic(y, H, rho0, scene.sph.sound_speed, g)) / (rho0 * g * H)
     for name, e in (("rho0 g (H - y)", err), ("compressible (Tait)", compressible)):
         means = np.array([np.mean(e[layer == k]) if np.any(layer == k) else 0.0 for k in range(10)])
