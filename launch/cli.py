@@ -46,6 +46,38 @@ def _positive_float(text: str) -> float:
     return value
 
 
+TRUST_HELP = ("every link is mutually authenticated TLS with the run's own certificates (docs/USAGE.md "
+              "'Security'); --insecure: plain TCP, no authentication, loopback only")
+
+
+def _add_trust_options(parser, stdin: bool = False):
+    """--tls DIR / --insecure (and --tls-stdin for the launchers' remote peers): how this process
+    proves who it is to the run's other processes."""
+    group = parser.add_argument_group("security", TRUST_HELP)
+    group.add_argument("--tls", type=Path, default=None, metavar="DIR",
+                       help="the run's credentials folder (made by sph run in OUT/tls, or by sph certs)")
+    if stdin:
+        group.add_argument("--tls-stdin", action="store_true",
+                           help="read this process's credentials as one JSON line from stdin (sph run --hosts "
+                                "does this over ssh, so no key is written on the remote host)")
+    group.add_argument("--insecure", action="store_true",
+                       help="plain TCP without authentication or encryption; listening on loopback only")
+
+
+def _port(text: str) -> int:
+    value = _positive_int(text)
+    if not 1 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a port (1..65535)")
+    return value
+
+
+def _add_port_options(parser):
+    parser.add_argument("--web-port", type=_port, default=None, metavar="PORT",
+                        help="--serve-web: the web page's port (default 9090, or a free one if it is taken)")
+    parser.add_argument("--grpc-port", type=_port, default=None, metavar="PORT",
+                        help="--serve-web / --spawn: the Rerun stream's port (default 9876, or a free one)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="sph",
@@ -94,6 +126,11 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--resume", type=Path, default=None, metavar="DIR",
                      help="continue from the newest checkpoint of DIR (a run's OUT folder, its checkpoints/ or "
                           "a step_* folder), with the scene saved there; --steps/--until count from step 0")
+    run.add_argument("--restarts", type=_positive_int, default=0, metavar="K",
+                     help="with --peers N (N >= 2) or --hosts: when a peer dies or stops answering, stop the "
+                          "others and restart the run, with the same peers, from the newest checkpoint "
+                          "(--checkpoint-every; from the start if there is none yet), up to K times; the "
+                          "result is bitwise the uninterrupted run's, and summary.json lists the restarts")
     run.add_argument("--hosts", type=Path, default=None, metavar="FILE",
                      help="run one peer per line of FILE ('HOST PORT [THREADS]') over ssh instead of on this "
                           "machine; see docs/USAGE.md")
@@ -101,14 +138,21 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--remote-dir", default=None, help="--hosts: the repository on the hosts (default: this folder)")
     run.add_argument("--remote-python", default="python3",
                      help="--hosts: the Python with sphfluid installed on the hosts, e.g. /shared/sph/.venv/bin/python")
-    run.add_argument("--listen-host", default="0.0.0.0", help="--hosts: the address each peer listens on")
+    run.add_argument("--listen-host", default=None,
+                     help="--hosts: the address each peer listens on (default: its own name in the hosts file)")
+    run.add_argument("--insecure", action="store_true",
+                     help="plain TCP between the run's processes: no authentication, no encryption, loopback "
+                          "only (by default the launcher makes a run CA and one certificate per process in "
+                          "OUT/tls, and every link is mutually authenticated TLS)")
     view = run.add_argument_group("viewer", "frames composited by depth and logged to Rerun every render.every "
                                             "steps; by default recorded to OUT/run.rrd (sph replay OUT/run.rrd)")
     view.add_argument("--record", type=Path, default=None, metavar="FILE.rrd",
                       help="record to this file instead of OUT/run.rrd")
     view.add_argument("--no-viewer", action="store_true", help="no frames, no recording")
     view.add_argument("--spawn", action="store_true", help="also open the native Rerun viewer")
-    view.add_argument("--serve-web", action="store_true", help="also serve the web viewer on localhost (URL printed)")
+    view.add_argument("--serve-web", action="store_true",
+                      help="also serve the web viewer on 127.0.0.1 (URL printed; ports: --web-port, --grpc-port)")
+    _add_port_options(view)
     view.add_argument("--connect", dest="rerun_url", default=None, metavar="URL",
                       help="also stream to an already running Rerun viewer, e.g. rerun+http://127.0.0.1:9876/proxy")
     run.add_argument("--quiet", action="store_true", help="no progress output")
@@ -118,7 +162,8 @@ def build_parser() -> argparse.ArgumentParser:
         description="Start peer RANK of a WORLD-peer run. Every peer of the run gets the same CONFIG, --set, "
                     "--precision, --steps/--until and --run-id; each listens on its own endpoint and connects "
                     "to the others' (at least to every lower rank), e.g. on host B: sph peer dam.toml --rank 1 "
-                    "--world 2 --run-id demo --listen tcp/0.0.0.0:7448 --connect tcp/hostA:7447. Rank 0 "
+                    "--world 2 --run-id demo --tls certs/ --listen tls/hostB:7448 --connect tls/hostA:7447 "
+                    "(certs/ made once with: sph certs certs/ --peer-host hostA --peer-host hostB). Rank 0 "
                     "gathers the result and writes OUT on its machine. See docs/USAGE.md.")
     peer.add_argument("config", type=Path, nargs="?", default=None,
                       help="scene file (TOML), the same on every peer (not with --resume)")
@@ -127,9 +172,9 @@ def build_parser() -> argparse.ArgumentParser:
     peer.add_argument("--run-id", required=True,
                       help="the run's name on the network (letters, digits, - and _); two runs never mix")
     peer.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
-                      help="Zenoh endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)")
+                      help="Zenoh endpoint to listen on, e.g. tls/hostA:7447 (repeatable)")
     peer.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
-                      help="another peer's endpoint, e.g. tcp/10.0.0.2:7447 (repeatable)")
+                      help="another peer's endpoint, e.g. tls/hostB:7447 (repeatable)")
     peer.add_argument("--out", type=Path, default=None, help="output folder on rank 0 (default: runs/<scene name>)")
     peer.add_argument("--precision", choices=("f32", "f64"), default=None,
                       help="floating point precision (default: the scene's run.precision; auto = f64 on the "
@@ -154,6 +199,17 @@ def build_parser() -> argparse.ArgumentParser:
                       help="continue from the newest checkpoint of DIR (written by any number of peers)")
     peer.add_argument("--no-frames", action="store_true",
                       help="never render framelets (by default: every render.every steps while a viewer listens)")
+    supervised = peer.add_argument_group("supervised", "set by the launchers (sph run); not needed by hand")
+    supervised.add_argument("--watch-stdin", action="store_true",
+                            help="stop (exit code 4) as soon as stdin reaches end-of-file: the launcher keeps "
+                                 "a pipe open there, so a killed launcher (or a lost ssh connection) takes "
+                                 "this peer down; do not use with a terminal or /dev/null as stdin")
+    supervised.add_argument("--report-progress", action="store_true",
+                            help="print 'sph-progress STEP' lines on stdout a few times a second")
+    supervised.add_argument("--restart-history", default=None, metavar="JSON",
+                            help="the launcher's restarts so far (a JSON list); rank 0 writes it into "
+                                 "summary.json as 'restarts'")
+    _add_trust_options(peer, stdin=True)
 
     viewer = sub.add_parser(
         "viewer", help="composite a run's framelets and stream them to Rerun (joins a running run too)",
@@ -172,23 +228,51 @@ def build_parser() -> argparse.ArgumentParser:
                         help="the run's --set overrides (render settings may differ)")
     viewer.add_argument("--record", type=Path, default=None, metavar="FILE.rrd", help="record to this file")
     viewer.add_argument("--spawn", action="store_true", help="open the native Rerun viewer")
-    viewer.add_argument("--serve-web", action="store_true", help="serve the web viewer on localhost")
+    viewer.add_argument("--serve-web", action="store_true", help="serve the web viewer on 127.0.0.1 (URL printed)")
+    _add_port_options(viewer)
     viewer.add_argument("--rerun-url", default=None, metavar="URL", help="stream to a running Rerun viewer")
     viewer.add_argument("--idle-timeout", type=_positive_float, default=None,
                         help="stop after this many seconds without a framelet")
     viewer.add_argument("--stats", type=Path, default=None, metavar="FILE.json",
                         help="write frame counts and composite latency here at the end")
+    viewer.add_argument("--watch-stdin", action="store_true",
+                        help="stop (flushing the recording) when stdin reaches end-of-file: set by sph run, "
+                             "whose pipe there closes if it is killed")
+    _add_trust_options(viewer)
 
     control = sub.add_parser(
         "control", help="pause/resume a running run, switch its camera or change safe parameters",
-        description="Send a command to a running multi-peer run (connect to rank 0's endpoint). Every peer "
-                    "applies it after the same step, and the viewer records it. Commands: pause | resume | "
-                    "camera NAME | color_by speed|density|pressure|rank | set KEY=VALUE with KEY one of "
-                    "forces.external, forces.gravity, sph.alpha, sph.nu, boundary.friction, boundary.restitution.")
+        description="Send a command to a running multi-peer run (connect to rank 0's endpoint) and wait for rank "
+                    "0's answer: 'accepted at step N' (every peer applies it after step N, and the viewer records "
+                    "it; exit 0) or 'rejected: REASON' (exit 2); no answer within --timeout exits 4. Commands: "
+                    "pause | resume | camera NAME | color_by speed|density|pressure|rank | set KEY=VALUE with KEY "
+                    "one of forces.external, forces.gravity, sph.alpha, sph.nu, boundary.friction, "
+                    "boundary.restitution. A paused run waits for resume as long as it takes.")
     control.add_argument("--run-id", required=True)
     control.add_argument("--connect", action="append", default=[], metavar="ENDPOINT", required=True,
-                         help="rank 0's Zenoh endpoint, e.g. tcp/127.0.0.1:7447")
+                         help="rank 0's Zenoh endpoint, e.g. tls/127.0.0.1:7447")
+    control.add_argument("--world", type=_positive_int, default=None,
+                         help="number of peers in the run (needed with --tls: the access-control list names them)")
+    control.add_argument("--timeout", type=_positive_float, default=10.0,
+                         help="seconds to wait for rank 0 to listen and to answer (default: 10)")
+    _add_trust_options(control)
     control.add_argument("words", nargs="+", metavar="COMMAND", help="e.g. pause, or set forces.external=[2,0,0]")
+
+    certs = sub.add_parser(
+        "certs", help="make a run's CA and certificates by hand (for sph peer / viewer / control)",
+        description="Make a fresh certificate authority for one run in DIR (mode 0700) and one certificate per "
+                    "peer, one for the viewer and one for the controller, then forget the CA's key (nobody can "
+                    "add a member later). Give each peer's host name or address as others dial it (TLS "
+                    "verifies it); copy DIR to the run's machines over a channel you trust. sph run makes "
+                    "these itself (OUT/tls).")
+    certs.add_argument("dir", type=Path, help="new folder for the credentials")
+    who = certs.add_mutually_exclusive_group(required=True)
+    who.add_argument("--peers", type=_positive_int, default=None, metavar="N", help="N peers, all on this machine")
+    who.add_argument("--peer-host", action="append", default=[], metavar="HOST",
+                     help="the host name or address of the next peer (rank order; repeat once per peer)")
+    certs.add_argument("--viewer-host", action="append", default=[], metavar="HOST",
+                       help="the viewer's host name or address, if peers connect to it (repeatable)")
+    certs.add_argument("--days", type=_positive_int, default=30, help="validity in days (default 30)")
 
     render = sub.add_parser(
         "render", help="PNG frames and an MP4 of a run's fluid surface (or particles), off-screen",
@@ -235,7 +319,8 @@ def build_parser() -> argparse.ArgumentParser:
     replay = sub.add_parser("replay", help="open a recording (.rrd) in the Rerun viewer",
                             description="Open FILE.rrd in the native Rerun viewer, or serve it to a browser.")
     replay.add_argument("file", type=Path, help="a recording, e.g. runs/dam_break/run.rrd")
-    replay.add_argument("--serve-web", action="store_true", help="serve the web viewer on localhost instead")
+    replay.add_argument("--serve-web", action="store_true", help="serve the web viewer on 127.0.0.1 instead")
+    _add_port_options(replay)
 
     scene = sub.add_parser("scene", help="validate a scene and print it fully resolved (TOML)")
     scene.add_argument("config", type=Path)
@@ -262,6 +347,10 @@ def build_parser() -> argparse.ArgumentParser:
                             "--backend cuda --sizes 100000 1000000 4000000 --precisions f32 f64")
     bench.add_argument("--config", type=Path, default=None, help="scene to benchmark (default: dam_break)")
     bench.add_argument("--json", type=Path, default=None, help="write results as JSON here")
+    bench.add_argument("--network", action="store_true",
+                       help="instead: the 2-peer run over loopback with TLS and with --insecure, and over two "
+                            "network-namespace hosts at 0, 1 and 5 ms (root), interleaved --repeat times")
+    bench.add_argument("--repeat", type=_positive_int, default=3, help="--network: rounds of every case")
     return parser
 
 
@@ -276,6 +365,8 @@ def main(argv: list[str] | None = None) -> int:
     from sphcore.backends import BackendUnavailable
     from sphcore.scene import SceneError
     from sphcore.solver import SimulationError
+    from nodes.rerun_sinks import SinkError
+    from nodes.security import SecurityError
     try:
         if args.command == "run":
             return _cmd_run(args)
@@ -287,6 +378,8 @@ def main(argv: list[str] | None = None) -> int:
             return _cmd_replay(args)
         if args.command == "control":
             return _cmd_control(args)
+        if args.command == "certs":
+            return _cmd_certs(args)
         if args.command == "render":
             return _cmd_render(args)
         if args.command == "validate":
@@ -316,7 +409,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "bench":
             from launch.bench import run_bench
             return run_bench(args)
-    except (SceneError, UsageError, BackendUnavailable) as e:
+    except (SceneError, UsageError, BackendUnavailable, SecurityError, SinkError) as e:
         print(f"sph {args.command}: error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except SimulationError as e:
@@ -424,10 +517,19 @@ def _cmd_run(args) -> int:
         if args.peers not in (1, len(hosts)):
             raise UsageError(f"--peers {args.peers} --hosts {args.hosts}: the hosts file lists {len(hosts)} peers")
         _check_peers(scene, len(hosts))
-        return run_hosts(args.config, args.hosts, args)
+        _check_restarts(args, scene)
+        if args.insecure:
+            from nodes.security import is_loopback
+            remote = [h.name for h in hosts if not is_loopback(h.name)]
+            if remote:
+                raise UsageError(f"--insecure with --hosts {args.hosts}: {', '.join(remote)} is not a loopback "
+                                 "address; plain TCP across a network lets anyone join or read the run (drop "
+                                 "--insecure: every link is then mutually authenticated TLS)")
+        return run_hosts(args.config, args.hosts, args, _output_folder(args, scene))
     _check_threads(args.threads)
     scene, ckpt = _scene_for_run(args)
     out = _output_folder(args, scene)
+    _check_restarts(args, scene)
     if args.peers > 1:
         _check_peers(scene, args.peers)
         from launch.local import run_local_peers
@@ -458,11 +560,26 @@ def _cmd_run(args) -> int:
     return 0
 
 
+def _check_restarts(args, scene):
+    """--restarts needs peer processes; without checkpoints every restart starts from step 0."""
+    if not args.restarts:
+        return
+    if args.peers < 2 and args.hosts is None:
+        raise UsageError(f"--restarts {args.restarts}: only with --peers N (N >= 2) or --hosts FILE; a run in "
+                         "this process has no peer to lose")
+    every = args.checkpoint_every if args.checkpoint_every is not None else scene.output.checkpoint_every
+    if not every:
+        logging.getLogger("sph.launch").warning(
+            "--restarts %d without checkpoints (--checkpoint-every K or output.checkpoint_every): a restart "
+            "starts the run again from step 0", args.restarts)
+
+
 def viewer_options(args, scene, out: Path) -> dict | None:
     """Where the frames go, or None for no frames at all."""
     if args.no_viewer or scene.render.every == 0:
         return None
     return {"record": args.record or out / "run.rrd", "spawn": args.spawn, "serve_web": args.serve_web,
+            "grpc_port": args.grpc_port, "web_port": args.web_port,
             "connect": args.rerun_url}
 
 
@@ -482,27 +599,34 @@ def _cmd_viewer(args) -> int:
         raise UsageError("give --connect (a peer's endpoint) and/or --listen")
     if not (args.record or args.spawn or args.serve_web or args.rerun_url):
         raise UsageError("say where the frames go: --record FILE.rrd, --spawn, --serve-web or --rerun-url URL")
+    from nodes import security
+    trust = trust_for(args, security.VIEWER, args.world)
+    security.check_endpoints(args.listen, args.connect, trust is not None)
     scene = load_scene(args.config, args.overrides)
-    rec = open_recording(args.run_id, args.record, args.spawn, args.serve_web, args.rerun_url)
+    rec = open_recording(args.run_id, args.record, args.spawn, args.serve_web, args.rerun_url, args.grpc_port,
+                         args.web_port)
     import signal
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # stopped by the launcher: flush the recording
+    if args.watch_stdin:  # the launcher is gone: stop as if it had said so (SIGTERM: flush, then exit)
+        from nodes.supervise import watch_stdin
+        watch_stdin(lambda: os.kill(os.getpid(), signal.SIGTERM))
 
     def ready():
         print("viewer ready", flush=True)
 
     frames = run_viewer(scene, args.run_id, args.listen, args.connect, rec, domain_box(scene), args.world, 0,
-                        ready=ready, idle_timeout=args.idle_timeout, stats_path=args.stats)
+                        ready=ready, idle_timeout=args.idle_timeout, stats_path=args.stats, trust=trust)
     print(f"sph viewer: {frames} frames", file=sys.stderr)
     return 0
 
 
 def _cmd_control(args) -> int:
+    import threading
     import time
 
-    import numpy as np
     import zenoh
 
-    from nodes import control, wire
+    from nodes import control, security, wire
     from nodes.zenoh_transport import zenoh_config
     text = " ".join(args.words)
     try:
@@ -510,23 +634,85 @@ def _cmd_control(args) -> int:
         wire.check_run_id(args.run_id)
     except ValueError as e:
         raise UsageError(str(e)) from None
-    session = zenoh.open(zenoh_config([], args.connect))
+    if len(text.encode()) > control.MAX_TEXT:
+        raise UsageError(f"command of {len(text.encode())} bytes: at most {control.MAX_TEXT}")
+    trust = trust_for(args, security.CONTROL, args.world)
+    command_id = control.new_id()
+    answer, answered = {}, threading.Event()
+
+    def on_ack(sample):  # rank 0's answers to every controller of the run: ours has our id
+        try:
+            _, (step, _), arrays = wire.decode(sample.payload.to_bytes(), args.run_id, wire.CONTROLLER, 1,
+                                               sources=(0,), max_bytes=control.MAX_MESSAGE)
+            ack = control.read_ack(arrays)
+        except ValueError:  # wire.WireError included: not an answer of this run's rank 0
+            return
+        if ack["id"] == command_id and not answered.is_set():
+            answer.update(ack, step=step)
+            answered.set()
+
+    where = ", ".join(args.connect)
+    session = zenoh.open(zenoh_config([], args.connect, trust=trust))
     try:
+        session.declare_subscriber(wire.ack_key(args.run_id), on_ack)  # before sending: no answer is missed
         pub = session.declare_publisher(wire.control_key(args.run_id),
                                         congestion_control=zenoh.CongestionControl.BLOCK)
-        deadline = time.monotonic() + 10.0
+        deadline = time.monotonic() + args.timeout
         while not pub.matching_status.matching:  # rank 0 of that run subscribes to commands
             if time.monotonic() > deadline:
-                raise UsageError(f"no run {args.run_id!r} is listening at {', '.join(args.connect)} "
-                                 "(connect to rank 0's endpoint)")
+                print(f"sph control: no run {args.run_id!r} is listening at {where} after {args.timeout:g} s "
+                      "(connect to rank 0's endpoint); nothing was sent", file=sys.stderr)
+                return EXIT_PEER
             time.sleep(0.05)
-        pub.put(wire.encode(args.run_id, -1, "control", wire.CONTROLLER, 0,
-                            {"command": np.frombuffer(text.encode(), dtype=np.uint8)}))
-        time.sleep(0.2)  # let the message leave before the session closes
+        pub.put(wire.encode(args.run_id, -1, "control", wire.CONTROLLER, 0, control.command_arrays(command_id, text)))
+        answered.wait(max(0.0, deadline - time.monotonic()))
     finally:
         session.close()
-    print(f"sph control: sent {text!r} to run {args.run_id}", file=sys.stderr)
+    if not answer:
+        print(f"sph control: {text!r} was sent to run {args.run_id}, but rank 0 did not answer within "
+              f"{args.timeout:g} s: it may not be applied (run over, or rank 0 stuck?)", file=sys.stderr)
+        return EXIT_PEER
+    if answer["result"] == "accepted":
+        print(f"sph control: accepted at step {answer['step']}", file=sys.stderr)
+        return 0
+    print(f"sph control: rejected: {answer['reason']}", file=sys.stderr)
+    return EXIT_BAD_INPUT
+
+
+def _cmd_certs(args) -> int:
+    from nodes import security
+    hosts = [[h] for h in args.peer_host] if args.peer_host else [[] for _ in range(args.peers)]
+    if not hosts:
+        raise UsageError("--peers 0: a run has at least one peer")
+    security.make_run_credentials(args.dir, hosts, args.viewer_host, args.days)
+    print(f"sph certs: {args.dir}/: ca.pem, peer-0..{len(hosts) - 1}, viewer and control (.pem + .key, readable "
+          "only by you); give each machine ca.pem and its own pair", file=sys.stderr)
     return 0
+
+
+def trust_for(args, name: str, world: int | None):
+    """The Trust (nodes/security.py) of this process from --tls / --tls-stdin / --insecure, or
+    None for --insecure (with a warning that says what that gives away)."""
+    from nodes import security
+    stdin = getattr(args, "tls_stdin", False)
+    given = [o for o, v in (("--tls", args.tls is not None), ("--tls-stdin", stdin), ("--insecure", args.insecure))
+             if v]
+    if len(given) != 1:
+        raise UsageError(("choose one of " + " ".join(given)) if given else
+                         "say how this process proves who it is: --tls DIR (the run's credentials: sph run "
+                         "makes them in OUT/tls, sph certs by hand) or --insecure (plain TCP on loopback, no "
+                         "authentication)")
+    if args.insecure:
+        logging.getLogger("sph.security").warning(
+            "--insecure: plain TCP, no authentication, no encryption: any process that reaches these ports can "
+            "join, read or steer the run")
+        return None
+    if world is None:
+        raise UsageError("--world N is needed with TLS (the access-control list names every peer)")
+    identity = security.Identity.from_json(sys.stdin.readline()) if stdin else security.load_identity(args.tls, name)
+    if identity.name != name:
+        raise UsageError(f"the credentials given are {identity.name!r}'s; this process is {name!r}")
+    return security.Trust(identity, args.run_id, world)
 
 
 def _cmd_render(args) -> int:
@@ -548,17 +734,22 @@ def _cmd_render(args) -> int:
 
 def _cmd_replay(args) -> int:
     import os
-    import shutil
     import subprocess
+
+    from nodes.rerun_sinks import rerun_executable, serve_web
     if not args.file.is_file():
         raise UsageError(f"{str(args.file)!r}: no such recording")
-    rerun = shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
-    cmd = [rerun, str(args.file)] + (["--serve-web"] if args.serve_web else [])
-    if not args.serve_web and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+    os.environ["RERUN_ANALYTICS"] = "0"
+    if args.serve_web:
+        import signal
+        signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # stop the server with us
+        proc, _, page = serve_web(args.grpc_port, args.web_port, recording=args.file)
+        print(f"sph replay: {args.file} on {page} (Ctrl-C stops)", file=sys.stderr, flush=True)
+        return proc.wait()
+    if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
         raise UsageError("no display for the native viewer here; use --serve-web and open the printed URL, "
                          "or copy the .rrd to a machine with a display and run: rerun FILE.rrd")
-    env = dict(os.environ, RERUN_ANALYTICS="0")
-    return subprocess.call(cmd, env=env)
+    return subprocess.call([rerun_executable(), str(args.file)])
 
 
 def _print_done(out: Path, summary: dict | None = None):
@@ -582,7 +773,10 @@ def _cmd_peer(args) -> int:
         raise UsageError(f"--run-id: {e}") from None
     for ep in args.listen + args.connect:
         if "/" not in ep:
-            raise UsageError(f"endpoint {ep!r}: expected PROTOCOL/ADDRESS:PORT, e.g. tcp/127.0.0.1:7447")
+            raise UsageError(f"endpoint {ep!r}: expected PROTOCOL/ADDRESS:PORT, e.g. tls/127.0.0.1:7447")
+    from nodes import security
+    trust = trust_for(args, security.peer_name(args.rank), args.world)
+    security.check_endpoints(args.listen, args.connect, trust is not None)
     _check_threads(args.threads)
     _check_backend(args)
     scene, ckpt = _scene_for_run(args)
@@ -593,10 +787,15 @@ def _cmd_peer(args) -> int:
         numba.set_num_threads(args.threads)
     logging.getLogger().handlers[0].setFormatter(
         logging.Formatter(f"%(asctime)s peer {args.rank} %(name)s %(levelname)s %(message)s", "%H:%M:%S"))
+    restarts = _restart_history(args.restart_history)
+    from nodes import supervise
+    if args.watch_stdin:  # after anything that reads a first line from stdin (--tls-stdin)
+        supervise.watch_stdin(supervise.exit_when_launcher_gone(f"peer {args.rank}", EXIT_PEER))
     from nodes.peer import run_peer
     from nodes.zenoh_transport import ZenohEndpoint
     try:
-        endpoint = ZenohEndpoint(args.run_id, args.rank, args.world, args.listen, args.connect, args.timeout)
+        endpoint = ZenohEndpoint(args.run_id, args.rank, args.world, args.listen, args.connect, args.timeout,
+                                 trust=trust)
     except Exception as e:  # zenoh raises ZError for endpoints it cannot use
         raise UsageError(f"cannot open Zenoh with --listen {args.listen} --connect {args.connect}: {e}") from None
     try:
@@ -604,10 +803,25 @@ def _cmd_peer(args) -> int:
                  args.precision or (ckpt.manifest["precision"] if ckpt else None), args.steps, args.until,
                  progress=not args.quiet, startup_timeout=args.timeout, frames=not args.no_frames, resume=ckpt,
                  checkpoint_every=args.checkpoint_every, checkpoint_root=out / "checkpoints",
-                 backend=args.backend, device=args.device)
+                 backend=args.backend, device=args.device,
+                 report=supervise.ProgressReport() if args.report_progress else None, restarts=restarts)
     finally:
         endpoint.close()
     return 0
+
+
+def _restart_history(text: str | None) -> list | None:
+    """--restart-history: a JSON list of the launcher's restarts (launch/supervise.py)."""
+    if text is None:
+        return None
+    import json
+    try:
+        history = json.loads(text)
+    except ValueError as e:
+        raise UsageError(f"--restart-history: not JSON ({e})") from None
+    if not isinstance(history, list) or not all(isinstance(h, dict) for h in history):
+        raise UsageError("--restart-history: expected a JSON list of objects")
+    return history
 
 
 if __name__ == "__main__":

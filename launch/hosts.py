@@ -8,10 +8,16 @@ Hosts file (``#`` starts a comment; rank = line order among the non-empty lines)
     10.0.0.7          7450
 
 Peer R runs ``cd REMOTE_DIR && PYTHON -m launch.cli peer CONFIG --rank R ...`` on its host,
-listening on ``tcp/LISTEN_HOST:PORT`` (``--listen-host``, default 0.0.0.0) and connecting to every lower rank's ``tcp/HOST:PORT`` (a full
-mesh; no router, no multicast). The repository (and its environment) must be at REMOTE_DIR on
+listening on ``tls/LISTEN_HOST:PORT`` (``--listen-host``, default: its own HOST) and connecting to
+every lower rank's ``tls/HOST:PORT`` (a full mesh; no router, no multicast). The launcher makes the
+run's credentials in OUT/tls on this machine (nodes/security.py: one certificate per peer, naming
+its HOST, so that TLS verifies every peer dialled) and hands each peer its own over ssh's stdin:
+no key is written on a remote host and none appears on a command line. ``--insecure`` runs plain
+TCP instead, and only where every host is a loopback address. The repository (and its environment) must be at REMOTE_DIR on
 every host — a shared file system, or the same checkout everywhere. Rank 0 writes the outputs on
-its host. The watch loop is the local launcher's: a failed peer stops the run, Ctrl-C stops all.
+its host. The watch and restart loop is the local launcher's (launch/supervise.py): a failed peer
+stops the run (or, with --restarts, restarts it from the newest checkpoint), Ctrl-C stops all; each
+peer runs with --watch-stdin, so it stops when its ssh connection (and so its stdin) closes.
 """
 from __future__ import annotations
 
@@ -22,7 +28,8 @@ import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 
-from launch.local import _stop, _watch, new_run_id, run_options
+from launch import supervise
+from launch.local import _stop, new_run_id, prepare_security, run_options
 
 log = logging.getLogger("sph.launch")
 
@@ -66,12 +73,18 @@ def read_hosts(path: Path) -> list[Host]:
     return hosts
 
 
+def _endpoint(scheme: str, host: str, port: int) -> str:
+    return f"{scheme}/[{host}]:{port}" if ":" in host else f"{scheme}/{host}:{port}"
+
+
 def remote_command(host: Host, rank: int, hosts: list[Host], run_id: str, config: str, args, remote_dir: str,
-                   python: str) -> str:
+                   python: str, scheme: str = "tls") -> str:
+    listen = _endpoint(scheme, args.listen_host or host.name, host.port)
     cmd = [python, "-m", "launch.cli", "peer", config, "--rank", str(rank), "--world", str(len(hosts)),
-           "--run-id", run_id, "--listen", f"tcp/{args.listen_host}:{host.port}", "--timeout", str(args.timeout)]
+           "--run-id", run_id, "--listen", listen, "--timeout", str(args.timeout)]
+    cmd += ["--tls-stdin"] if scheme == "tls" else ["--insecure"]
     for lower in hosts[:rank]:
-        cmd += ["--connect", f"tcp/{lower.name}:{lower.port}"]
+        cmd += ["--connect", _endpoint(scheme, lower.name, lower.port)]
     threads = host.threads or args.threads
     if threads:
         cmd += ["--threads", str(threads)]
@@ -83,21 +96,47 @@ def remote_command(host: Host, rank: int, hosts: list[Host], run_id: str, config
     return f"cd {shlex.quote(remote_dir)} && exec " + " ".join(shlex.quote(c) for c in cmd)
 
 
-def run_hosts(config: Path, hosts_file: Path, args) -> int:
+def run_hosts(config: Path, hosts_file: Path, args, out: Path) -> int:
+    """Start one peer per host over ssh and watch them; ``out``: where this machine keeps the run's
+    credentials (OUT/tls), and the peers' OUT (relative: to REMOTE_DIR). With ``args.restarts`` K,
+    a lost peer restarts the run on the same hosts and ports (a new run id each time) from the
+    newest checkpoint in OUT/checkpoints — as this machine sees it at REMOTE_DIR/OUT: a shared file
+    system, or this machine as a host; else from the start — up to K times (launch/supervise.py)."""
+    from nodes import security
     hosts = read_hosts(hosts_file)
-    run_id = new_run_id()
+    scheme = prepare_security(args, out, [[h.name] for h in hosts])
     ssh = shlex.split(args.ssh)
     remote_dir = args.remote_dir or str(Path.cwd())
-    log.info("run %s: %d peers on %s", run_id, len(hosts), ", ".join(f"{h.name}:{h.port}" for h in hosts))
-    procs = []
-    try:
+    restarts = getattr(args, "restarts", 0) or 0
+    log.info("%d peers on %s", len(hosts), ", ".join(f"{h.name}:{h.port}" for h in hosts))
+
+    def start(attempt, resume, history):
+        run_id = new_run_id()  # a peer we could not stop (on its host) can never join a later attempt
+        log.info("run %s%s", run_id, f" (restart {len(history)})" if history else "")
+        # a restart from a checkpoint: the peers read its scene (argparse takes --resume=DIR as one word)
+        source = f"--resume={Path(out) / 'checkpoints' / Path(resume).name}" if resume is not None else str(config)
+        run_args = supervise.resumed_args(args, resume)
+        extra = supervise.peer_options(restarts, history)
+        if args.checkpoint_every is not None:
+            extra += ["--checkpoint-every", str(args.checkpoint_every)]
         for rank, host in enumerate(hosts):
-            command = remote_command(host, rank, hosts, run_id, str(config), args, remote_dir, args.remote_python)
+            command = remote_command(host, rank, hosts, run_id, source, run_args, remote_dir, args.remote_python,
+                                     scheme)
+            command += " " + " ".join(shlex.quote(c) for c in extra)  # the command ends with exec PYTHON ...
             log.debug("peer %d: %s %s %s", rank, " ".join(ssh), host.name, command)
-            procs.append(subprocess.Popen(ssh + [host.name, command]))
-        return _watch(procs)
+            proc = subprocess.Popen(ssh + [host.name, command], **supervise.popen_options())
+            if scheme == "tls":  # its credentials, one JSON line; the pipe stays open while we run
+                proc.stdin.write((security.load_identity(args.tls_dir, security.peer_name(rank)).to_json()
+                                  + "\n").encode())
+                proc.stdin.flush()
+            attempt.add(proc)
+
+    seen = Path(out) if Path(out).is_absolute() else Path(remote_dir) / out
+    supervisor = supervise.Supervisor(start, restarts, seen / "checkpoints", local=False)
+    try:
+        return supervisor.run()
     except KeyboardInterrupt:
-        _stop(procs, signal.SIGINT)
+        _stop(supervisor.processes(), signal.SIGINT)
         raise
     finally:
-        _stop(procs, signal.SIGTERM)
+        _stop(supervisor.processes(), signal.SIGTERM)

@@ -3,9 +3,11 @@
 Each peer is a fresh interpreter (``python -m launch.cli peer ...``: spawned, never forked after
 Zenoh is open) listening on its own ``tcp/127.0.0.1:PORT`` and connecting to every other peer's
 (a full mesh; multicast scouting off). Numba threads per peer default to cores / N. Rank 0 gathers
-the result and writes the usual outputs. The launcher watches the processes: if one exits with an
-error the others notice through Zenoh liveliness, and any still running after a grace period are
-stopped; Ctrl-C stops them all.
+the result and writes the usual outputs. The launcher watches the processes (launch/supervise.py):
+if one exits with an error the others notice through Zenoh liveliness, a stopped one is killed at
+once and any still running after a grace period are stopped; with --restarts a lost peer restarts
+the run from the newest checkpoint; Ctrl-C stops them all. Every peer (and the viewer) gets a pipe
+as stdin and --watch-stdin, so a killed launcher takes them down within a second.
 """
 from __future__ import annotations
 
@@ -19,6 +21,9 @@ import threading
 import time
 import uuid
 from pathlib import Path
+
+from launch import supervise
+from sphcore import checkpoint
 
 log = logging.getLogger("sph.launch")
 
@@ -46,6 +51,32 @@ def default_threads(n_peers: int) -> int:
     return max(1, (os.cpu_count() or 1) // n_peers)
 
 
+def prepare_security(args, out: Path, peer_hosts: list[list[str]], viewer_hosts=()) -> str:
+    """Make the run's credentials (a fresh CA and one certificate per process) in OUT/tls, readable
+    only by this user, and set ``args.tls_dir``; returns the endpoint scheme ("tls", or "tcp" with
+    --insecure). The previous run's OUT/tls is replaced: its CA is useless without its key anyway."""
+    import shutil
+
+    from nodes import security
+    if getattr(args, "insecure", False):
+        log.warning("--insecure: plain TCP between the run's processes, no authentication, no encryption: "
+                    "any process that reaches these ports can join, read or steer the run")
+        args.tls_dir = None
+        return "tcp"
+    folder = Path(out) / "tls"
+    if folder.exists():
+        shutil.rmtree(folder)
+    security.make_run_credentials(folder, peer_hosts, viewer_hosts or security.LOOPBACK_NAMES)
+    args.tls_dir = folder
+    return "tls"
+
+
+def security_options(args) -> list[str]:
+    """The security flags of a process the launcher starts on this machine."""
+    folder = getattr(args, "tls_dir", None)
+    return ["--tls", str(folder)] if folder is not None else ["--insecure"]
+
+
 def peer_command(config: Path, rank: int, world: int, run_id: str, listen: str, connect: list[str], out: Path,
                  args) -> list[str]:
     source = ["--resume", str(args.resume)] if getattr(args, "resume", None) else [str(config)]
@@ -55,7 +86,7 @@ def peer_command(config: Path, rank: int, world: int, run_id: str, listen: str, 
         cmd += ["--checkpoint-every", str(args.checkpoint_every)]
     for ep in connect:
         cmd += ["--connect", ep]
-    return cmd + run_options(args) + (["--quiet"] if args.quiet else [])
+    return cmd + run_options(args) + security_options(args) + (["--quiet"] if args.quiet else [])
 
 
 def run_options(args) -> list[str]:
@@ -76,13 +107,16 @@ def run_options(args) -> list[str]:
 
 def viewer_command(config: Path, run_id: str, listen: str, n_peers: int, viewer: dict, args) -> list[str]:
     cmd = [sys.executable, "-m", "launch.cli", "viewer", str(config), "--run-id", run_id, "--listen", listen,
-           "--world", str(n_peers)]  # (a resumed run's viewer gets the checkpoint's scene.toml)
+           "--world", str(n_peers)] + security_options(args)  # (a resumed run gets the checkpoint's scene.toml)
     if viewer["record"]:
         cmd += ["--record", str(viewer["record"]), "--stats", str(Path(viewer["record"]).with_name("viewer.json"))]
     if viewer["spawn"]:
         cmd.append("--spawn")
     if viewer["serve_web"]:
         cmd.append("--serve-web")
+    for option in ("grpc_port", "web_port"):
+        if viewer.get(option) is not None:
+            cmd += ["--" + option.replace("_", "-"), str(viewer[option])]
     if viewer["connect"]:
         cmd += ["--rerun-url", viewer["connect"]]
     for o in args.overrides:
@@ -92,7 +126,8 @@ def viewer_command(config: Path, run_id: str, listen: str, n_peers: int, viewer:
 
 def _start_viewer(cmd, env, timeout: float = 120.0):
     """Start the viewer and wait for its "viewer ready" line (subscribed), so no frame is missed."""
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, text=True)
+    # stdin: a pipe we keep open (--watch-stdin: the viewer stops when we are gone)
+    proc = subprocess.Popen(cmd, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     ready = threading.Event()
 
     def read():
@@ -113,28 +148,41 @@ def _start_viewer(cmd, env, timeout: float = 120.0):
 
 def run_local_peers(config: Path, n_peers: int, out: Path, args, viewer: dict | None = None) -> int:
     """Start the viewer (if any) and the peers, wait for them; return the exit code (0, or the first
-    failing peer's)."""
+    failing peer's). With ``args.restarts`` K, a lost peer restarts the run — every peer, on new
+    ports, the same run id (the viewer keeps watching) — from the newest checkpoint in
+    OUT/checkpoints, up to K times (launch/supervise.py)."""
     threads = args.threads or default_threads(n_peers)
     run_id = new_run_id()
+    scheme = prepare_security(args, out, [["127.0.0.1"]] * n_peers)
     ports = free_ports(n_peers + 1)
-    endpoints = [f"tcp/127.0.0.1:{p}" for p in ports[:n_peers]]
-    viewer_endpoint = f"tcp/127.0.0.1:{ports[-1]}"
+    endpoints = [f"{scheme}/127.0.0.1:{p}" for p in ports[:n_peers]]
+    viewer_endpoint = f"{scheme}/127.0.0.1:{ports[-1]}"
     env = dict(os.environ, NUMBA_NUM_THREADS=str(threads), PYTHONUNBUFFERED="1", RERUN_ANALYTICS="0")
     log.info("run %s: %d peers on this machine, %d numba threads each, endpoints %s", run_id, n_peers, threads,
              ", ".join(endpoints))
-    procs, view = [], None
-    try:
-        if viewer is not None:
-            view = _start_viewer(viewer_command(config, run_id, viewer_endpoint, n_peers, viewer, args), env)
+    view = None
+    restarts = getattr(args, "restarts", 0) or 0
+
+    def start(attempt, resume, history):
+        eps = endpoints if not history else [f"{scheme}/127.0.0.1:{p}" for p in free_ports(n_peers)]
+        run_args = supervise.resumed_args(args, resume)
         for rank in range(n_peers):
             # each peer connects to the lower ranks and is connected to by the higher ones (a full
             # mesh), and to the viewer
-            connect = endpoints[:rank] + ([viewer_endpoint] if view is not None else [])
-            cmd = peer_command(config, rank, n_peers, run_id, endpoints[rank], connect, out, args)
+            connect = eps[:rank] + ([viewer_endpoint] if view is not None else [])
+            cmd = peer_command(config, rank, n_peers, run_id, eps[rank], connect, out, run_args)
             if view is None:
                 cmd.append("--no-frames")
-            procs.append(subprocess.Popen(cmd, env=env))
-        code = _watch(procs)
+            cmd += supervise.peer_options(restarts, history)
+            attempt.add(subprocess.Popen(cmd, env=env, **supervise.popen_options()))
+
+    origin = checkpoint.latest(args.resume) if getattr(args, "resume", None) else None
+    supervisor = supervise.Supervisor(start, restarts, out / "checkpoints", origin_step=origin[1] if origin else 0)
+    try:
+        if viewer is not None:
+            view = _start_viewer(viewer_command(config, run_id, viewer_endpoint, n_peers, viewer, args)
+                                 + ["--watch-stdin"], env)
+        code = supervisor.run()
         if view is not None and code == 0:
             try:
                 view.wait(timeout=30)  # it stops by itself after rank 0's end notice
@@ -143,47 +191,17 @@ def run_local_peers(config: Path, n_peers: int, out: Path, args, viewer: dict | 
         # after a failure the viewer is stopped at once (SIGTERM: it flushes the recording first)
         return code
     except KeyboardInterrupt:
-        _stop(procs + ([view] if view else []), signal.SIGINT)
+        _stop(supervisor.processes() + ([view] if view else []), signal.SIGINT)
         raise
     finally:
-        _stop(procs + ([view] if view else []), signal.SIGTERM)
+        _stop(supervisor.processes() + ([view] if view else []), signal.SIGTERM)
 
 
-def _watch(procs, grace: float = 5.0) -> int:
-    """Wait for every peer. After the first failure, give the others ``grace`` seconds to notice
-    (they exit on their own through Zenoh liveliness) before stopping them."""
-    failed_at, first_failure = None, None
-    while True:
-        codes = [p.poll() for p in procs]
-        for rank, code in enumerate(codes):
-            if code not in (None, 0) and first_failure is None:
-                first_failure = (rank, code)
-                failed_at = time.monotonic()
-                how = f"was killed by signal {-code}" if code < 0 else f"exited with code {code}"
-                log.error("peer %d %s; stopping the run", rank, how)
-        if all(c is not None for c in codes):
-            break
-        if failed_at is not None and time.monotonic() - failed_at > grace:
-            stuck = [r for r, c in enumerate(codes) if c is None]
-            log.error("peers %s still running %.0f s after peer %d failed; stopping them", stuck, grace,
-                      first_failure[0])
-            _stop(procs, signal.SIGTERM)
-            break
-        time.sleep(0.05)
-    if first_failure is None:
-        return 0
-    code = first_failure[1]
-    return code if code > 0 else 4  # killed by a signal: "a peer was lost" (cli.EXIT_PEER)
+def _watch(procs, grace: float = supervise.GRACE_S) -> int:
+    """Wait for every peer (launch/supervise.py ``watch``); returns the run's exit code."""
+    return supervise.watch(procs, grace).code
 
 
 def _stop(procs, sig):
-    for p in procs:
-        if p.poll() is None:
-            p.send_signal(sig)
-    deadline = time.monotonic() + 3.0
-    for p in procs:
-        try:
-            p.wait(timeout=max(0.0, deadline - time.monotonic()))
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait()
+    """Stop the processes still running with ``sig`` (stopped ones too), SIGKILL after 2 s."""
+    supervise.stop(procs, sig)

@@ -80,14 +80,21 @@ def run_scene(scene: Scene, out: Path, precision: str | None, steps: int | None,
     t_setup = time.perf_counter() - t_start
     every = scene.output.checkpoint_every if checkpoint_every is None else checkpoint_every
     hooks = []
+    saved = checkpoint_record(every)
     if every:
         root = out / "checkpoints"
 
         def save():
             if sim.step_index % every == 0:
-                part = checkpoint.write_part(root, sim.step_index, 0, sim)
-                checkpoint.commit(root, sim.step_index, checkpoint.sim_info(sim), resolved_scene(scene, sim), [part],
-                                  scene.output.checkpoint_keep)
+                try:
+                    part = checkpoint.write_part(root, sim.step_index, 0, sim)
+                    checkpoint.commit(root, sim.step_index, checkpoint.sim_info(sim), resolved_scene(scene, sim),
+                                      [part], scene.output.checkpoint_keep)
+                except checkpoint.CheckpointWriteError as e:
+                    checkpoint_failed(saved, sim.step_index, str(e))
+                else:
+                    saved["written"] += 1
+                    saved["last"] = sim.step_index
         hooks.append(save)
     if scene.output.vtk_every:
         from sphcore.vtk import VtkWriter
@@ -104,7 +111,8 @@ def run_scene(scene: Scene, out: Path, precision: str | None, steps: int | None,
         os.environ.setdefault("RERUN_ANALYTICS", "0")
         box = domain_box(scene)
         rec = open_recording(f"{scene.scene.name}-{os.getpid()}", viewer["record"], viewer["spawn"],
-                             viewer["serve_web"], viewer["connect"])
+                             viewer["serve_web"], viewer["connect"], viewer.get("grpc_port"),
+                             viewer.get("web_port"))
         view = Viewer(scene, box, rec, 1, sim.n_particles)
         maker = FrameMaker(scene, box, 0, 1, sim.n_particles)
 
@@ -125,12 +133,27 @@ def run_scene(scene: Scene, out: Path, precision: str | None, steps: int | None,
             view.rec.flush()
     final = sim.final_arrays()
     summary = make_summary(sim, scene, loop, t_setup, time.perf_counter() - t_start)
+    if every:
+        summary["checkpoints"] = saved
     if view is not None:
         summary["viewer"] = {"frames": view.frames, "record": str(viewer["record"]) if viewer["record"] else None,
                              "composite_latency_ms_median": float(np.median(view.latency_ms)) if view.latency_ms
                              else None}
     write_outputs(out, resolved_scene(scene, sim), final, summary)
     return summary
+
+
+def checkpoint_record(every: int) -> dict:
+    """summary.json's "checkpoints": how many were written and failed, the newest good step."""
+    return {"every": every, "written": 0, "failed": 0, "last": None, "failures": []}
+
+
+def checkpoint_failed(record: dict, step: int, error: str):
+    """A checkpoint that could not be written: one warning, counted; the run goes on."""
+    record["failed"] += 1
+    record["failures"].append({"step": step, "error": error})
+    last = f"step {record['last']}" if record["last"] is not None else "none yet"
+    log.warning("%s; not kept, the run goes on (last good checkpoint: %s)", error, last)
 
 
 def resolved_scene(scene: Scene, sim) -> dict:

@@ -1,10 +1,17 @@
 """The control channel: change a running multi-peer run without breaking its determinism.
 
-A controller (``sph control``) publishes a command to ``sph/<run>/control``; rank 0 subscribes,
-validates it and announces it to every peer inside its step-s reduction message (the one message
-every peer receives from rank 0 in every step). All peers apply it after step s, so the run stays
-identical on every peer (and reproducible from the recording, where the viewer logs each applied
-command under ``control``).
+A controller (``sph control``) publishes a command with a random id to ``sph/<run>/control`` (with
+access control, only the controller's identity may publish there); rank 0 subscribes, validates it
+against the scene and answers on ``sph/<run>/ack`` with the same id: "accepted" and the step N after
+which every peer applies it, or "rejected" and the reason. Accepted commands are announced to every
+peer inside rank 0's step reduction message (the one message every peer receives from rank 0 in
+every step); the other peers check what they are announced (``check_announced``) and all apply it
+after the same step, so the run stays identical on every peer (and reproducible from the recording,
+where the viewer logs each applied command under ``control``).
+
+A command message carries two byte arrays, ``id`` (8-32 lowercase hex digits) and ``command`` (the
+command line as typed); an ack carries ``id``, ``result`` (accepted | rejected) and ``reason``, with
+the step in the message header.
 
 Commands:
 
@@ -15,6 +22,11 @@ Commands:
 """
 from __future__ import annotations
 
+import re
+import secrets
+
+import numpy as np
+
 SETTABLE = {
     "forces.external": "constant external acceleration (m/s^2), e.g. [2, 0, 0]",
     "forces.gravity": "gravity (m/s^2)",
@@ -24,6 +36,61 @@ SETTABLE = {
     "boundary.restitution": "normal velocity kept on wall contact",
 }
 COLOURS = ("speed", "density", "pressure", "rank")
+MAX_TEXT = 1000           # bytes of one command line
+MAX_MESSAGE = 4096        # bytes of a command message on the wire (header included)
+MAX_PENDING = 64          # commands waiting for rank 0's next step
+ANNOUNCED = ("pause", "camera", "color_by", "set")  # what rank 0 announces (resume only ends a pause)
+_ID = re.compile(r"^[0-9a-f]{8,32}$")
+_FIELDS = {"pause": (), "camera": ("name",), "color_by": ("quantity",), "set": ("key", "value")}
+
+
+def new_id() -> str:
+    """A fresh command id (the controller matches rank 0's ack to its command by it)."""
+    return secrets.token_hex(8)
+
+
+def _text(array, what: str, limit: int) -> str:
+    if array.dtype != np.uint8 or array.ndim != 1 or len(array) > limit:
+        raise ValueError(f"{what}: expected at most {limit} bytes of text, got {array.dtype}{list(array.shape)}")
+    return bytes(array).decode()  # UnicodeDecodeError is a ValueError
+
+
+def _bytes_of(text: str) -> np.ndarray:
+    return np.frombuffer(text.encode(), dtype=np.uint8)
+
+
+def command_arrays(command_id: str, text: str) -> dict:
+    """The arrays of a command message."""
+    return {"id": _bytes_of(command_id), "command": _bytes_of(text)}
+
+
+def read_command(phase: str, arrays: dict) -> dict:
+    """{"id", "text"} of a command message (decoded by ``wire.decode``); ValueError if it is not one.
+    The text is parsed and validated later, by rank 0's step loop, which acknowledges it."""
+    if phase != "control" or set(arrays) != {"id", "command"}:
+        raise ValueError(f"phase {phase!r} with arrays {sorted(arrays)[:8]}, expected 'control' with id, command")
+    command_id = _text(arrays["id"], "id", 32)
+    if not _ID.match(command_id):
+        raise ValueError(f"command id {command_id!r}: expected 8-32 lowercase hex digits")
+    return {"id": command_id, "text": _text(arrays["command"], "command", MAX_TEXT)}
+
+
+def ack_arrays(command_id: str, result: str, reason: str = "") -> dict:
+    """The arrays of rank 0's answer to command ``command_id``."""
+    if result not in ("accepted", "rejected"):
+        raise ValueError(f"ack result {result!r}: accepted or rejected")
+    return {"id": _bytes_of(command_id), "result": _bytes_of(result),
+            "reason": _bytes_of(reason.encode()[:MAX_TEXT].decode(errors="ignore"))}
+
+
+def read_ack(arrays: dict) -> dict:
+    """{"id", "result", "reason"} of an ack message; ValueError if it is not one."""
+    if set(arrays) != {"id", "result", "reason"}:
+        raise ValueError(f"ack arrays {sorted(arrays)[:8]}, expected id, result, reason")
+    ack = {k: _text(arrays[k], k, MAX_TEXT) for k in ("id", "result", "reason")}
+    if ack["result"] not in ("accepted", "rejected"):
+        raise ValueError(f"ack result {ack['result']!r}")
+    return ack
 
 
 def parse(text: str) -> dict:
@@ -74,3 +141,25 @@ def describe(cmd: dict) -> str:
     if cmd["op"] == "set":
         return f"set {cmd['key']} = {cmd['value']}"
     return " ".join(str(v) for v in cmd.values())
+
+
+def check_announced(scene, commands, cameras) -> list:
+    """What a peer is announced in rank 0's reduction must be commands rank 0 could have accepted:
+    a list of dicts with exactly the fields of their op, values that pass ``validate``. Raises
+    ValueError naming the first that is not (the peer then drops the message, sphcore/halo.py)."""
+    if not isinstance(commands, list):
+        raise ValueError(f"announced commands are a {type(commands).__name__}, not a list")
+    for cmd in commands:
+        op = cmd.get("op") if isinstance(cmd, dict) else None
+        if op not in ANNOUNCED or set(cmd) != {"op", *_FIELDS[op]}:
+            raise ValueError(f"announced command {str(cmd)[:80]}: not one of {', '.join(ANNOUNCED)} with its fields")
+        if op == "camera" and not isinstance(cmd["name"], str):
+            raise ValueError(f"announced camera {cmd['name']!r}: not a name")
+        if op == "color_by" and cmd["quantity"] not in COLOURS:
+            raise ValueError(f"announced color_by {cmd['quantity']!r}: allowed {', '.join(COLOURS)}")
+        if op == "set" and cmd["key"] not in SETTABLE:
+            raise ValueError(f"announced set {cmd['key']!r}: not settable at run time")
+        checked = validate(scene, cmd, cameras)
+        if op == "set" and checked["value"] != cmd["value"]:
+            raise ValueError(f"announced set {cmd['key']} = {cmd['value']!r}: not a validated value")
+    return commands

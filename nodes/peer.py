@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from sphcore.decomposition import Decomposition, choose_dims
-from sphcore.halo import PeerHalo
+from sphcore.halo import PeerHalo, Reject
 from sphcore.solver import Simulation
 from sphcore.state import merge_by_id
 
@@ -44,11 +44,13 @@ def decomposition_for(scene, grid, n_peers: int, x=None) -> Decomposition:
 
 
 def take_block(sim: Simulation, dec: Decomposition, rank: int):
-    """Keep only the particles of ``sim`` in the block of ``rank``."""
+    """Keep only the particles of ``sim`` in the block of ``rank``: the named fields and every
+    carried array (``state.extra``: DFSPH's kappa, the continuity density), filtered alike."""
     s = sim.state
     mine = dec.owner(sim.grid.cells_of(s.x)) == rank
     for name in ("id", "x", "v", "m", "a", "rho", "p"):
         setattr(s, name, np.ascontiguousarray(getattr(s, name)[mine]))
+    s.extra = {name: np.ascontiguousarray(values[mine]) for name, values in s.extra.items()}
     s.n_owned = int(mine.sum())
     sim._resize_scratch(s.n)
 
@@ -74,27 +76,72 @@ class PeerRecorder:
 
 
 class Controls:
-    """Control commands (nodes/control.py) on a peer: rank 0 validates what the endpoint received
-    and hands it to its halo, which announces it in the step's reduction; after the step every
-    peer applies the announced commands. ``pause`` holds every peer after that step until rank 0
-    gets ``resume`` and tells the others."""
+    """Control commands (nodes/control.py) on a peer.
+
+    Rank 0 takes what its endpoint received on the controller's key, validates each command against
+    the scene and answers on the ack key: rejected with the reason, or accepted at step N, the step
+    after which every peer applies it. Accepted commands go out in the step's reduction
+    (``PeerHalo.control_source``); the other peers check what they are announced
+    (``PeerHalo.control_check``: an announcement that is not a valid command is dropped like any
+    forged message). After the step every peer applies the announced commands. ``pause`` holds
+    every peer after that step until rank 0 gets ``resume``; it is acknowledged like any command,
+    so whoever paused a run is told so, and a pause while paused or a resume while running is
+    rejected with the reason."""
 
     def __init__(self, sim, halo, endpoint, maker):
         self.sim, self.halo, self.endpoint, self.maker = sim, halo, endpoint, maker
-        self.applied = []  # (step, description), for the summary
+        self.applied = []      # (step, description), for the summary
+        self._held = []        # rank 0: commands accepted during a pause, announced in the next step
+        self._paused_at = None  # rank 0: the step after which the run is held
+        self.cameras = ["default"] + [c.name for c in sim.scene.render.cameras]
         if halo.rank == 0:
-            halo.control_source = self._validated
+            halo.control_source = self._announce
+        else:
+            halo.control_check = self._check_announced
 
-    def _validated(self) -> list:
+    def _accept(self, entry: dict, step: int) -> dict | None:
+        """A received command ({"id", "text"}) parsed and validated, or None after acknowledging
+        its rejection (``step``: the step the run is at, for the ack)."""
         from nodes import control
-        cameras = list(self.maker.renderer.cameras) if self.maker else ["default"]
-        out = []
-        for cmd in self.endpoint.take_commands():
-            try:
-                out.append(control.validate(self.sim.scene, cmd, cameras))
-            except ValueError as e:
-                log.warning("peer 0: rejected control command %s: %s", control.describe(cmd), e)
+        try:
+            cmd = control.validate(self.sim.scene, control.parse(entry["text"]), self.cameras)
+            if cmd["op"] == "resume" and self._paused_at is None:
+                raise ValueError("resume: the run is not paused")
+            if cmd["op"] == "pause" and self._paused_at is not None:
+                raise ValueError(f"pause: the run is already paused after step {self._paused_at}")
+        except ValueError as e:
+            self._reject(entry, step, str(e))
+            return None
+        return cmd
+
+    def _reject(self, entry: dict, step: int, reason: str):
+        log.warning("peer 0: rejected control command %r: %s", entry["text"][:80], reason)
+        self.endpoint.send_ack(entry["id"], "rejected", step, reason)
+
+    def _announce(self) -> list:
+        """Rank 0, in the step's reduction: the commands to announce now, those held during a pause
+        first; each new one is acknowledged as accepted at the step after which it is applied."""
+        from nodes import control
+        step = self.sim.step_index
+        out, self._held = self._held, []
+        for entry in self.endpoint.take_commands():
+            cmd = self._accept(entry, step)
+            if cmd is None:
+                continue
+            if cmd["op"] == "pause" and any(c["op"] == "pause" for c in out):
+                self._reject(entry, step, f"pause: a pause is already announced for step {step + 1}")
+                continue
+            out.append(cmd)
+            self.endpoint.send_ack(entry["id"], "accepted", step + 1)
+            log.info("peer 0: accepted control command %r for step %d", control.describe(cmd), step + 1)
         return out
+
+    def _check_announced(self, commands):
+        from nodes import control
+        try:
+            control.check_announced(self.sim.scene, commands, self.cameras)
+        except ValueError as e:
+            raise Reject("control", str(e)) from None
 
     def after_step(self):
         from nodes import control
@@ -116,44 +163,62 @@ class Controls:
                 self._paused()
 
     def _paused(self):
-        """Hold until resume: rank 0 watches its commands, then releases the others."""
+        """Hold until resume: rank 0 answers the commands that arrive meanwhile (the others are
+        announced in the next step), then releases the other peers."""
         from nodes.zenoh_transport import PeerTimeout
         step = self.sim.step_index
         if self.halo.rank == 0:
-            held = []
-            while True:
+            self._paused_at = step
+            while self._paused_at is not None:
                 self.endpoint.check()
-                cmds = self.endpoint.take_commands()
-                if any(c["op"] == "resume" for c in cmds):
-                    held += [c for c in cmds if c["op"] not in ("pause", "resume")]
-                    break
-                held += [c for c in cmds if c["op"] != "pause"]
+                for entry in self.endpoint.take_commands():
+                    cmd = self._accept(entry, step)
+                    if cmd is None:
+                        continue
+                    if cmd["op"] == "resume":
+                        self._paused_at = None  # what follows in this batch is validated as in a running run
+                        self.endpoint.send_ack(entry["id"], "accepted", step)
+                    else:
+                        self._held.append(cmd)
+                        self.endpoint.send_ack(entry["id"], "accepted", step + 1)
                 time.sleep(0.05)
-            self.endpoint.commands[:0] = held  # announced at the next step
             for q in self.halo.others:
                 self.endpoint.send(q, (step, "resume"), {})
         else:
             while True:
                 try:
-                    self.endpoint.wait(0, (step, "resume"))
+                    self.endpoint.wait(0, (step, "resume"), _empty_check)
                     break
                 except PeerTimeout:
                     continue  # paused as long as rank 0 says; a lost peer still raises PeerLost
         log.info("peer %d: resumed after step %d", self.halo.rank, step)
 
+    def finish(self):
+        """Rank 0 at the end of the run: commands that came too late are rejected, not left unanswered."""
+        if self.halo.rank != 0:
+            return
+        step = self.sim.step_index
+        for entry in self.endpoint.take_commands():
+            self._reject(entry, step, f"the run ended at step {step}")
+
 
 def run_peer(scene, rank: int, world: int, endpoint, out: Path | None, precision: str | None,
              steps: int | None, until: float | None, progress: bool, startup_timeout: float = 120.0,
              frames: bool = True, resume=None, checkpoint_every: int | None = None,
-             checkpoint_root: Path | None = None, backend: str = "cpu", device: int | None = None) -> dict | None:
+             checkpoint_root: Path | None = None, backend: str = "cpu", device: int | None = None,
+             report=None, restarts: list | None = None) -> dict | None:
     """Run peer ``rank`` of ``world`` to the end; rank 0 writes ``out`` and returns the summary.
     With ``frames`` (and render.every > 0) the peer renders and publishes a framelet every
     render.every steps while a viewer is subscribed. ``resume``: a loaded checkpoint (any number of
     peers may have written it); checkpoints go to ``checkpoint_root`` every ``checkpoint_every``
-    steps (default output.checkpoint_every), one part per peer, committed by rank 0."""
+    steps (default output.checkpoint_every), one part per peer, committed by rank 0 when every part
+    was written (a part that fails, e.g. on a full disk, drops that checkpoint; the run goes on).
+    ``report(step)`` is called after every step (nodes/supervise.ProgressReport); ``restarts``: the
+    launcher's restart history, which rank 0 writes into summary.json."""
     import numba
 
-    from launch.run import advance, make_summary, resolved_scene, write_outputs
+    from launch.run import (advance, checkpoint_failed, checkpoint_record, make_summary, resolved_scene,
+                            write_outputs)
     from nodes.frames import FrameMaker, domain_box
     from nodes.viewer import frame_arrays
     t_start = time.perf_counter()
@@ -166,6 +231,8 @@ def run_peer(scene, rank: int, world: int, endpoint, out: Path | None, precision
     take_block(sim, dec, rank)
     halo = PeerHalo(dec, rank, endpoint, scene.decomposition.balance_every,
                     scene.decomposition.balance_by)
+    endpoint.at_step(sim.step_index)  # earlier steps are replays; steps far ahead are not from this run
+    endpoint.set_message_limit(message_limit(sim))
     t_setup = time.perf_counter() - t_start
     log.info("peer %d/%d: block %s of %s, %d of %d particles, %d numba threads", rank, world,
              dec.block_of(rank), dec.dims, sim.state.n_owned, sim.n_particles, numba.get_num_threads())
@@ -175,16 +242,34 @@ def run_peer(scene, rank: int, world: int, endpoint, out: Path | None, precision
     controls = Controls(sim, halo, endpoint, maker)
     every = scene.output.checkpoint_every if checkpoint_every is None else checkpoint_every
 
+    saved = checkpoint_record(every)
+
     def save():
+        # every peer sends rank 0 its part's entry, or {"error": ...} if the part could not be
+        # written; rank 0 commits only when every part is in (else the step is dropped, once logged)
         step = sim.step_index
-        part = checkpoint.write_part(checkpoint_root, step, rank, sim)
+        try:
+            part = checkpoint.write_part(checkpoint_root, step, rank, sim)
+        except checkpoint.CheckpointWriteError as e:
+            part = {"error": f"peer {rank}: {e}"}
         if rank != 0:
             endpoint.send(0, (step, "ckpt"), {"entry": np.frombuffer(json.dumps(part).encode(), dtype=np.uint8)})
             return
-        parts = [part] + [json.loads(bytes(endpoint.wait(q, (step, "ckpt"))["entry"]).decode())
+        parts = [part] + [json.loads(bytes(endpoint.wait(q, (step, "ckpt"), _entry_check)["entry"]).decode())
                           for q in range(1, world)]
-        checkpoint.commit(checkpoint_root, step, checkpoint.sim_info(sim), resolved_scene(scene, sim), parts,
-                          scene.output.checkpoint_keep)
+        failed = [p["error"] for p in parts if "error" in p]
+        if not failed:
+            try:
+                checkpoint.commit(checkpoint_root, step, checkpoint.sim_info(sim), resolved_scene(scene, sim),
+                                  parts, scene.output.checkpoint_keep)
+            except checkpoint.CheckpointWriteError as e:
+                failed = [f"peer 0: {e}"]
+        if failed:
+            checkpoint.discard(checkpoint_root, step)
+            checkpoint_failed(saved, step, "; ".join(failed))
+        else:
+            saved["written"] += 1
+            saved["last"] = step
 
     vtk = None
     if scene.output.vtk_every:
@@ -201,6 +286,8 @@ def run_peer(scene, rank: int, world: int, endpoint, out: Path | None, precision
         controls.after_step()
         if every and sim.step_index % every == 0:
             save()
+        if report is not None:
+            report(sim.step_index)
         if vtk is not None and vtk.due(sim):
             vtk.write(sim, block_box())
         if maker is not None and maker.due(sim) and endpoint.viewer_listening():
@@ -209,6 +296,7 @@ def run_peer(scene, rank: int, world: int, endpoint, out: Path | None, precision
                 endpoint.publish_frame(sim.step_index, "frame", frame_arrays(frame, stats, points))
 
     loop = advance(sim, halo, scene, steps, until, progress and rank == 0, on_step=on_step)
+    controls.finish()
     v = sim.refresh(halo)
     s = sim.state
     n = s.n_owned
@@ -222,7 +310,7 @@ def run_peer(scene, rank: int, world: int, endpoint, out: Path | None, precision
         "kinetic_energy": sim.kinetic_energy(),
         "neighbours_sum": int(sim.grid.counts[:n].sum()), "neighbours_max": int(sim.grid.counts[:n].max(initial=0)),
         "neighbours_max_over_run": sim.max_neighbours, "rebalances": halo.rebalances,
-        "dropped_messages": endpoint.dropped, "threads": numba.get_num_threads(),
+        "dropped_messages": endpoint.dropped, "dropped": endpoint.drops, "threads": numba.get_num_threads(),
         "cuts": [list(c) for c in halo.dec.cuts], "controls": controls.applied,
     }
     final = {"id": s.id[:n], "x": s.x[:n], "v": np.ascontiguousarray(v[:n]), "rho": s.rho[:n],
@@ -230,10 +318,12 @@ def run_peer(scene, rank: int, world: int, endpoint, out: Path | None, precision
     step = sim.step_index
     if rank != 0:
         endpoint.send(0, (step, "final"), final)
-        endpoint.wait(0, (step, "bye"))
+        endpoint.wait(0, (step, "bye"), _empty_check)
         return None
-    parts = [final] + [endpoint.wait(q, (step, "final")) for q in range(1, world)]
-    peers = [json.loads(bytes(p["stats"]).decode()) for p in parts]
+    parts, peers = [final], [stats]
+    for q in range(1, world):
+        parts.append(endpoint.wait(q, (step, "final"), _final_check(sim, q, stats, parts, peers)))
+    peers[0].update(dropped_messages=endpoint.dropped, dropped=endpoint.drops)  # what came in while gathering too
     arrays = merge_by_id(parts, ("id", "x", "v", "rho"))
     if len(arrays["id"]) != sim.n_particles or np.any(np.diff(arrays["id"]) <= 0):
         raise RuntimeError(f"gathered {len(arrays['id'])} particles with "
@@ -241,6 +331,10 @@ def run_peer(scene, rank: int, world: int, endpoint, out: Path | None, precision
                            f"{sim.n_particles}")
     summary = make_summary(sim, scene, loop, t_setup, time.perf_counter() - t_start)
     summary.update(peer_summary(peers, summary, world, sim.dtype.itemsize))
+    if every:
+        summary["checkpoints"] = saved
+    if restarts is not None:
+        summary["restarts"] = restarts
     if out is not None:
         write_outputs(out, resolved_scene(scene, sim), arrays, summary)
     for q in range(1, world):
@@ -249,6 +343,75 @@ def run_peer(scene, rank: int, world: int, endpoint, out: Path | None, precision
     if maker is not None:
         endpoint.publish_frame(step, "end", {}, reliable=True)  # the viewer flushes and stops
     return summary
+
+
+HEADROOM = 1 << 20            # bytes: headers, control commands, checkpoint entries, a peer's statistics
+STATS_BYTES_PER_STEP = 256    # the final message's per-step statistics (particles, step_s, wait_s as JSON)
+
+
+def message_limit(sim: Simulation):
+    """(phase, step) -> the most bytes a genuine message of this run can have: every particle of the
+    scene with all it carries (a rebalance may move them all to one peer), the balance histograms,
+    and room for the rest; the final gather also carries per-step statistics, which grow with the
+    step. Anything longer is dropped unread (nodes/zenoh_transport.py)."""
+    s = sim.state
+    per_row = [s.id, s.x, s.v, s.m, s.a, s.rho, s.p, *s.extra.values()]
+    row = sum(a.itemsize * int(np.prod(a.shape[1:])) for a in per_row)
+    base = HEADROOM + sim.n_particles * row + 3 * 8 * int(np.sum(sim.grid.ncell))
+
+    def limit(phase: str, step: int) -> int:
+        return base + (STATS_BYTES_PER_STEP * max(step, 0) if phase == "final" else 0)
+
+    return limit
+
+
+def _empty_check(msg: dict):
+    """The "resume" and "bye" messages carry nothing."""
+    if msg:
+        raise Reject("arrays", f"arrays {sorted(msg)[:8]} where none belong")
+
+
+def _json_of(array, what: str):
+    if array.dtype != np.uint8 or array.ndim != 1:
+        raise Reject("dtype", f"{what} is {array.dtype}{list(array.shape)}, expected bytes")
+    try:
+        return json.loads(bytes(array).decode())
+    except (ValueError, RecursionError) as e:
+        raise Reject("malformed", f"{what}: not JSON ({e})") from None
+
+
+def _entry_check(msg: dict):
+    """A checkpoint entry (rank 0 commits what every peer wrote): a JSON object."""
+    if set(msg) != {"entry"} or not isinstance(_json_of(msg["entry"], "checkpoint entry"), dict):
+        raise Reject("arrays", f"checkpoint entry: arrays {sorted(msg)[:8]}, expected a JSON object in 'entry'")
+
+
+def _final_check(sim: Simulation, q: int, own: dict, parts: list, peers: list):
+    """Rank 0's check of peer ``q``'s final message: its owned particles (id, x, v, rho in the run's
+    dtype, finite, ids of this scene that no other peer reported) and statistics with the same
+    fields and number of steps as rank 0's. The accepted one's statistics are appended to ``peers``."""
+    from sphcore.halo import expect_arrays
+
+    def check(msg):
+        what = f"final from peer {q}"
+        ids = msg.get("id")
+        if ids is None or ids.ndim != 1 or len(ids) > sim.n_particles:
+            raise Reject("count", f"{what}: no id array of at most {sim.n_particles} particles")
+        n, dtype = len(ids), sim.dtype
+        expect_arrays(msg, {"id": ((n,), np.int64), "x": ((n, 3), dtype), "v": ((n, 3), dtype), "rho": ((n,), dtype),
+                            "stats": (msg["stats"].shape, np.uint8)}, what)
+        if n and (ids.min() < 0 or ids.max() >= sim.n_particles or len(np.unique(ids)) != n
+                  or any(np.isin(ids, p["id"]).any() for p in parts)):
+            raise Reject("ids", f"{what}: ids outside 0..{sim.n_particles - 1}, repeated, or reported by another peer")
+        stats = _json_of(msg["stats"], f"{what}: statistics")
+        if not (isinstance(stats, dict) and set(stats) == set(own) and stats["rank"] == q
+                and stats["particles_final"] == n
+                and all(isinstance(stats[k], list) and len(stats[k]) == len(own[k])
+                        for k in ("particles", "step_s", "wait_s"))):
+            raise Reject("stats", f"{what}: statistics are not a peer's of this run")
+        peers.append(stats)
+
+    return check
 
 
 def minimum_halo_bytes(ghosts: int, itemsize: int) -> int:
@@ -275,8 +438,15 @@ def peer_summary(peers: list[dict], base: dict, world: int, itemsize: int) -> di
     halo_bytes = sum(b for ph, b in bytes_per_phase.items() if ph != "frames")
     total_neighbours = sum(p["neighbours_sum"] for p in peers)
     minimum = minimum_halo_bytes(sum(p["ghosts_received"] for p in peers), itemsize)
+    by_reason = {}
+    for p in peers:
+        for reasons in p["dropped"].values():
+            for reason, count in reasons.items():
+                by_reason[reason] = by_reason.get(reason, 0) + count
     out = {
         "peers": world,
+        "dropped_messages": int(sum(p["dropped_messages"] for p in peers)),  # by source: per_peer[r]["dropped"]
+        "dropped_by_reason": by_reason,
         "leaks": int(sum(p["leaks"] for p in peers)),
         "kinetic_energy": float(sum(p["kinetic_energy"] for p in peers)),
         "neighbours": {"mean": total_neighbours / base["particles"], "max": max(p["neighbours_max"] for p in peers),
@@ -301,7 +471,8 @@ def peer_summary(peers: list[dict], base: dict, world: int, itemsize: int) -> di
             "compute_s_total": float(np.sum(p["step_s"]) - np.sum(p["wait_s"])),
             "bytes_sent": p["bytes_sent"], "array_bytes_sent": p["array_bytes_sent"],
             "stages": {k: v["total_s"] for k, v in p["stages"].items()},
-            "rebalances": p["rebalances"], "dropped_messages": p["dropped_messages"], "cuts": p["cuts"],
+            "rebalances": p["rebalances"], "dropped_messages": p["dropped_messages"], "dropped": p["dropped"],
+            "cuts": p["cuts"],
             "controls": p["controls"],
         } for p in peers],
     }

@@ -37,22 +37,18 @@ VIEWER = -1  # the viewer's address in message headers ("dest")
 
 
 def open_recording(run_id: str, record: Path | None = None, spawn: bool = False, serve_web: bool = False,
-                   connect: str | None = None):
-    """A Rerun recording stream with the requested sinks; analytics stay off (RERUN_ANALYTICS=0 is set
-    by the launcher; ``rerun analytics disable`` makes it permanent)."""
+                   connect: str | None = None, grpc_port: int | None = None, web_port: int | None = None):
+    """A Rerun recording stream that goes to every destination asked for at once (nodes/rerun_sinks.py:
+    the file, the native viewer, the web viewer on loopback, a URL); analytics stay off
+    (RERUN_ANALYTICS=0 is set by the launcher; ``rerun analytics disable`` makes it permanent)."""
     import rerun as rr
+
+    from nodes.rerun_sinks import sinks_for
     rec = rr.RecordingStream("sphfluid", recording_id=run_id)
-    if record is not None:
-        record.parent.mkdir(parents=True, exist_ok=True)
-        rec.save(record)
-    if spawn:
-        rec.spawn(connect=record is None)
-    if serve_web:
-        url = rec.serve_grpc()
-        rr.serve_web_viewer(connect_to=url, open_browser=False)
-        print(f"sph viewer: Rerun web viewer on http://localhost:9090/?url={url}", flush=True)
-    if connect:
-        rec.connect_grpc(connect)
+    sinks = sinks_for(record, spawn, serve_web, connect, grpc_port, web_port,
+                      announce=lambda text: print(text, flush=True))
+    if sinks:
+        rec.set_sinks(*sinks)
     return rec
 
 
@@ -189,8 +185,9 @@ def frame_from_arrays(rank: int, a: dict):
 
 def run_viewer(scene, run_id: str, listen: list[str], connect: list[str], rec, box, world: int | None,
                particles: int, ready=None, idle_timeout: float | None = None, grace: float = 1.0,
-               stats_path: Path | None = None) -> int:
-    """Subscribe to the run's framelets until rank 0 announces the end (or Ctrl-C); returns frames."""
+               stats_path: Path | None = None, trust=None) -> int:
+    """Subscribe to the run's framelets until rank 0 announces the end (or Ctrl-C); returns frames.
+    ``trust``: the viewer's credentials (nodes/security.py), None for an --insecure run."""
     import zenoh
 
     from nodes.zenoh_transport import zenoh_config
@@ -213,7 +210,7 @@ def run_viewer(scene, run_id: str, listen: list[str], connect: list[str], rec, b
             state["viewer"] = Viewer(scene, box, rec, n, stats.get("particles_total", particles))
         state["viewer"].add(step, source, frame, stats, points)
 
-    session = zenoh.open(zenoh_config(listen, connect))
+    session = zenoh.open(zenoh_config(listen, connect, trust=trust))
     try:
         session.declare_subscriber(wire.frame_all(run_id), on_frame)
         if ready is not None:

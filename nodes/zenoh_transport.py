@@ -3,21 +3,36 @@
 Each peer opens one Zenoh session in peer mode: multicast scouting off, listening on its own
 endpoint and connecting explicitly to the others' (a full mesh, no router needed). It subscribes
 to its inbox (``wire.inbox_key``) and declares a liveliness token; the subscriber callback (a Zenoh
-thread) decodes each message, drops anything malformed or foreign with a log line, and files the
-arrays in a mailbox keyed by (source, step, phase). ``recv`` blocks on that mailbox with a timeout.
+thread) decodes each message and files the arrays in a ``nodes.transport.Mailbox`` keyed by
+(source, step, phase). ``recv`` blocks on that mailbox with a timeout and takes the first message
+that passes the receiver's check (sphcore/halo.py).
 
-If a peer of the run disappears (its process died, or its links are lost for longer than the lease),
-its token vanishes and every waiting peer raises ``PeerLost`` at once; a peer that is merely slow
-makes ``recv`` raise ``PeerTimeout`` naming it and the step.
+Nothing that arrives is trusted: a message is dropped, counted by source and reason (``drops``,
+which go into summary.json) and logged at most once per reason per second, if it is malformed or
+of another run (``wire.decode``), if the source in its header is not the one its key expression
+names (the key is what Zenoh access control lets only that peer publish on), if it is longer than
+the run's largest message of its phase, outside the step window around this peer's step (replays
+and messages from the future), a duplicate, beyond the per-source bounds of the mailbox, or
+rejected by the receiver's check. Control commands are taken only from the controller's key and
+acknowledged on ``wire.ack_key`` by rank 0 (nodes/peer.py).
+
+If a peer of the run disappears, its token vanishes and every waiting peer raises ``PeerLost`` at
+once, saying whether it left (its links closed while it was talking: its process ended) or went
+quiet first and timed out a lease later (stopped or hung, or its machine or network down). A peer
+that is connected but silent is reported as "not answering for T s (still connected)" while we
+wait, and ``recv`` raises ``PeerTimeout`` naming it and the step after ``timeout`` seconds.
 """
 from __future__ import annotations
 
 import json
 import logging
+import re
 import threading
 import time
 
 from nodes import wire
+from nodes.transport import STEP_WINDOW, DropLog, Mailbox
+from sphcore.halo import Reject
 
 log = logging.getLogger("sph.zenoh")
 
@@ -35,14 +50,19 @@ class PeerTimeout(TransportError):
 
 
 LEASE_MS = 5000
+NOT_ANSWERING_S = 2.0   # a connected peer silent this long (while we wait for it) is reported
+SILENT_FRACTION = 0.8   # a token that vanishes after this fraction of a lease of silence: a link timed out
+PENDING_FACTOR = 4      # bytes waiting per source: this many of the largest message of the phase
+_RANK = re.compile(r"^[0-9]{1,9}$")
 
 
-def zenoh_config(listen: list[str], connect: list[str], lease_ms: int = LEASE_MS):
+def zenoh_config(listen: list[str], connect: list[str], lease_ms: int = LEASE_MS, trust=None):
     """Peer-mode configuration: explicit endpoints only (no multicast scouting, no gossip: every
     launcher connects each peer to all lower ranks, a full mesh). A peer whose process
     ends is gone at once (its sockets close); one whose links go silent (machine or network down) is
     declared gone after ``lease_ms``. Shorter leases flap on an overloaded machine (seen with 64 peers
-    on 2 cores at 1 s)."""
+    on 2 cores at 1 s). ``trust`` (nodes/security.Trust): mutually authenticated TLS and the run's
+    access-control list; None only for ``--insecure`` runs."""
     import zenoh
     conf = zenoh.Config()
     conf.insert_json5("mode", json.dumps("peer"))
@@ -52,6 +72,9 @@ def zenoh_config(listen: list[str], connect: list[str], lease_ms: int = LEASE_MS
     conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
     conf.insert_json5("transport/link/tx/lease", str(int(lease_ms)))
     conf.insert_json5("transport/link/tx/keep_alive", "4")
+    if trust is not None:
+        from nodes import security
+        security.apply(conf, trust)
     return conf
 
 
@@ -59,64 +82,100 @@ class ZenohEndpoint:
     """Peer ``rank`` of a ``world``-peer run ``run`` on Zenoh."""
 
     def __init__(self, run: str, rank: int, world: int, listen: list[str], connect: list[str],
-                 timeout: float = 120.0, lease_ms: int = LEASE_MS):
+                 timeout: float = 120.0, lease_ms: int = LEASE_MS, trust=None,
+                 window: int = STEP_WINDOW, not_answering_s: float = NOT_ANSWERING_S):
         import zenoh
         self.run = wire.check_run_id(run)
         self.rank, self.world, self.timeout = rank, world, timeout
         self._zenoh = zenoh
+        self.lease_s = lease_ms / 1000.0
+        self.not_answering_s = not_answering_s
         self._cv = threading.Condition()
-        self._mail = {}           # (source, step, phase) -> arrays
+        self._drops = DropLog(f"peer {rank}", log)  # what was dropped, by source and reason (``drops``)
+        self._mail = Mailbox(self._drops, window)     # (source, step, phase) -> candidates
+        self._message_limit = None  # (phase, step) -> largest genuine message (set_message_limit)
         self._alive = set()       # ranks whose liveliness token is present
-        self._lost = set()        # ranks whose token appeared, then vanished
+        self._lost = {}           # rank whose token appeared, then vanished -> seconds it had been silent
+        self._heard = {}          # rank -> monotonic time of its last message on its own key
+        self._usual_wait = {}     # rank -> moving average of the waits that ended with a message from it
         self._closing = False
-        self.dropped = 0          # malformed or foreign messages
         self.bytes_sent = {}      # phase -> bytes on the wire (headers included)
         self.wait_s = {}          # phase -> seconds blocked in recv
-        self.session = zenoh.open(zenoh_config(listen, connect, lease_ms))
+        self.session = zenoh.open(zenoh_config(listen, connect, lease_ms, trust))
         self._publishers = {}
         self._sub = self.session.declare_subscriber(wire.inbox_key(self.run, rank), self._on_message)
         self._live_sub = self.session.liveliness().declare_subscriber(wire.alive_all(self.run), self._on_alive,
                                                                       history=True)
-        self.commands = []        # rank 0: control commands received (nodes/control.py), not yet announced
+        self.commands = []        # rank 0: control commands received ({"id", "text"}), not yet taken
         if rank == 0:
             self._control_sub = self.session.declare_subscriber(wire.control_key(self.run), self._on_control)
         # declared after the inbox subscriber: whoever sees this token can already reach us
         self._token = self.session.liveliness().declare_token(wire.alive_key(self.run, rank))
 
     # -- Zenoh callbacks (Zenoh's threads) ----------------------------------------------------------
+    def _label(self, key) -> str:
+        """Who published on ``key``, as far as the key says: its last segment when that is a rank of
+        this run (with access control, only that peer may publish there), else "other" (so that
+        made-up keys cannot grow the drop counts without bound)."""
+        segment = str(key).rsplit("/", 1)[-1]
+        return segment if _RANK.match(segment) and int(segment) < self.world else "other"
+
     def _on_message(self, sample):
+        key = str(sample.key_expr)
+        label = self._label(key)
+        payload = sample.payload.to_bytes()
         try:
-            source, (step, phase), arrays = wire.decode(sample.payload.to_bytes(), self.run, self.rank, self.world)
+            source, (step, phase), arrays = wire.decode(payload, self.run, self.rank, self.world)
         except wire.WireError as e:
-            self.dropped += 1
-            log.warning("peer %d: dropped a message on %s: %s", self.rank, sample.key_expr, e)
+            self._drops(label, e.reason, f"on {key}: {e}")
+            return
+        if str(source) != label:  # the key is what access control vouches for; the header must agree
+            self._drops(label, "wrong key", f"step {step} {phase!r} on {key} says it is from peer {source}")
+            return
+        limit = self.message_limit(phase, step)
+        if len(payload) > limit:
+            self._drops(label, "oversized", f"step {step} {phase!r}: {len(payload)} bytes, this run's largest "
+                                            f"{phase!r} message is {limit} bytes")
             return
         with self._cv:
-            key = (source, step, phase)
-            if key in self._mail:
-                self.dropped += 1
-                log.warning("peer %d: dropped a duplicate %s message of step %d from peer %d",
-                            self.rank, phase, step, source)
-                return
-            self._mail[key] = arrays
-            self._cv.notify_all()
+            self._heard[source] = time.monotonic()
+            if self._mail.put(source, step, phase, arrays, len(payload), payload, PENDING_FACTOR * limit):
+                self._cv.notify_all()
 
     def _on_control(self, sample):
+        """A command on the controller's key (with access control, only the controller's identity may
+        publish there): queued for rank 0's step loop, which validates and acknowledges it."""
         from nodes import control
         try:
-            _, _, arrays = wire.decode(sample.payload.to_bytes(), self.run, 0, self.world, sources=(wire.CONTROLLER,))
-            command = control.parse(bytes(arrays["command"]).decode())
-        except (wire.WireError, ValueError, KeyError, UnicodeDecodeError) as e:
-            log.warning("peer 0: ignored a control message: %s", e)
+            _, (_, phase), arrays = wire.decode(sample.payload.to_bytes(), self.run, 0, self.world,
+                                                sources=(wire.CONTROLLER,), max_bytes=control.MAX_MESSAGE)
+            command = control.read_command(phase, arrays)
+        except wire.WireError as e:
+            self._drops("controller", e.reason, f"control message: {e}")
+            return
+        except ValueError as e:
+            self._drops("controller", "malformed", f"control message: {e}")
             return
         with self._cv:
+            if len(self.commands) >= control.MAX_PENDING:
+                self._drops("controller", "inbox full", f"{control.MAX_PENDING} commands already wait")
+                return
             self.commands.append(command)
             self._cv.notify_all()
 
     def take_commands(self) -> list:
+        """Rank 0: the commands received since the last call, as {"id", "text"}, oldest first."""
         with self._cv:
             out, self.commands = self.commands, []
         return out
+
+    def send_ack(self, command_id: str, result: str, step: int, reason: str = ""):
+        """Rank 0: answer the controller of command ``command_id`` on ``wire.ack_key``: "accepted"
+        (applied after step ``step`` on every peer) or "rejected" with ``reason``."""
+        from nodes import control
+        payload = wire.encode(self.run, max(int(step), -1), "ack", self.rank, wire.CONTROLLER,
+                              control.ack_arrays(command_id, result, reason))
+        self.session.put(wire.ack_key(self.run), payload, congestion_control=self._zenoh.CongestionControl.BLOCK)
 
     def _on_alive(self, sample):
         try:
@@ -131,8 +190,36 @@ class ZenohEndpoint:
             elif rank in self._alive:
                 self._alive.discard(rank)
                 if not self._closing:
-                    self._lost.add(rank)
+                    heard = self._heard.get(rank)
+                    self._lost[rank] = None if heard is None else time.monotonic() - heard
             self._cv.notify_all()
+
+    # -- what this peer accepts ---------------------------------------------------------------------
+    def set_message_limit(self, limit):
+        """``limit(phase, step)``: the most bytes a genuine ``phase`` message of ``step`` can have in
+        this run (nodes/peer.py sizes it from the scene); longer ones are dropped unread, and each
+        source may have 4 such messages' worth waiting at once."""
+        self._message_limit = limit
+
+    def message_limit(self, phase: str, step: int) -> int:
+        if self._message_limit is None:
+            return wire.MAX_MESSAGE
+        return min(wire.MAX_MESSAGE, int(self._message_limit(phase, step)))
+
+    def at_step(self, step: int):
+        """This peer is at ``step``: messages of earlier steps are replays, and those more than the
+        step window ahead are not from a peer of this run (``wait`` moves it on as well)."""
+        with self._cv:
+            self._mail.advance(step)
+
+    @property
+    def drops(self) -> dict:
+        """Messages dropped so far: {source: {reason: count}} (source: a rank, "controller" or "other")."""
+        return self._drops.counts
+
+    @property
+    def dropped(self) -> int:
+        return self._drops.total
 
     # -- the transport interface ------------------------------------------------------------------
     def send(self, dest: int, tag: tuple, arrays: dict):
@@ -171,35 +258,75 @@ class ZenohEndpoint:
             self._frame_publisher().put(payload)
         self.bytes_sent["frames"] = self.bytes_sent.get("frames", 0) + len(payload)
 
-    def recv(self, source: int, tag: tuple):
+    def recv(self, source: int, tag: tuple, check=None):
         """Generator with the in-process interface; it blocks instead of yielding."""
-        return self.wait(source, tag)
+        return self.wait(source, tag, check)
         yield  # pragma: no cover
 
-    def wait(self, source: int, tag: tuple) -> dict:
+    def wait(self, source: int, tag: tuple, check=None) -> dict:
+        """The first message ``tag`` from ``source`` that ``check`` (if given) does not reject;
+        rejected ones are dropped and counted. Raises PeerLost when a peer leaves, PeerTimeout after
+        ``timeout`` seconds; warns while the source is connected but silent."""
         step, phase = tag
         key = (source, step, phase)
-        t0 = time.perf_counter()
+        t0 = time.monotonic()
+        while True:
+            arrays = self._next_candidate(key, t0)
+            try:
+                if check is not None:
+                    check(arrays)
+            except Reject as r:
+                self._drops(source, r.reason, f"step {step} {phase!r}: {r.detail}")
+                continue
+            with self._cv:
+                self._mail.delivered(key)
+            waited = time.monotonic() - t0
+            self._usual_wait[source] = 0.9 * self._usual_wait.get(source, 0.0) + 0.1 * waited
+            self.wait_s[phase] = self.wait_s.get(phase, 0.0) + waited
+            return arrays
+
+    def _next_candidate(self, key, t0):
+        """Block until a message is filed under ``key`` (or the wait is over) and take it."""
+        source, step, phase = key
         deadline = t0 + self.timeout
+        # a peer that is merely as slow as usual (e.g. compiling) is not worth a warning
+        warn_at = max(self.not_answering_s, 10.0 * self._usual_wait.get(source, 0.0))
         with self._cv:
-            while key not in self._mail:
+            self._mail.advance(step)
+            while True:
+                arrays = self._mail.pop(key)
+                if arrays is not None:
+                    return arrays
                 if phase != "bye" or source in self._lost:  # at the end, peers that got their bye leave
                     self._check_lost(step, phase)
-                left = deadline - time.perf_counter()
+                now = time.monotonic()
+                quiet = now - max(t0, self._heard.get(source, t0))
+                if quiet >= warn_at and source in self._alive:
+                    log.warning("peer %d, step %d: peer %d not answering for %.1f s (still connected); waiting for "
+                                "its %r message", self.rank, step, source, quiet, phase)
+                    warn_at *= 2
+                left = deadline - now
                 if left <= 0:
-                    state = "alive" if source in self._alive else "not connected"
+                    state = (f"peer {source} not answering for {quiet:.1f} s (still connected: its process is busy, "
+                             "hung or stuck)" if source in self._alive else f"peer {source} not connected")
                     raise PeerTimeout(f"peer {self.rank}, step {step}: no {phase!r} message from peer {source} "
-                                      f"({state}) after {self.timeout:g} s")
-                self._cv.wait(min(left, 0.5))
-            arrays = self._mail.pop(key)
-        self.wait_s[phase] = self.wait_s.get(phase, 0.0) + time.perf_counter() - t0
-        return arrays
+                                      f"after {self.timeout:g} s: {state}")
+                self._cv.wait(max(0.01, min(left, 0.5, warn_at - quiet)))
 
     def _check_lost(self, step, phase):
         if self._lost:
-            lost = ", ".join(str(r) for r in sorted(self._lost))
-            raise PeerLost(f"peer {self.rank}, step {step} ({phase}): peer {lost} left the run "
-                           "(process ended or its network link was lost)")
+            lost = "; ".join(self._lost_reason(r) for r in sorted(self._lost))
+            raise PeerLost(f"peer {self.rank}, step {step} ({phase}): {lost}")
+
+    def _lost_reason(self, rank: int) -> str:
+        """Why ``rank``'s token vanished, as far as this peer can tell: a process that ends closes
+        its links at once, while one that is stopped (SIGSTOP), hung or cut off goes quiet first and
+        its link times out a lease later."""
+        silent = self._lost[rank]
+        if silent is not None and silent >= SILENT_FRACTION * self.lease_s:
+            return (f"peer {rank} not answering for {silent:.1f} s, then its link timed out (the process is "
+                    "stopped or hung, or its machine or network is down; it did not exit)")
+        return f"peer {rank} left the run (process ended or its network link was lost)"
 
     def check(self):
         """Raise PeerLost if a peer of the run has gone (called between steps)."""

@@ -13,7 +13,8 @@ command -v "$PYTHON" >/dev/null 2>&1 || PYTHON=python3
   || { echo "setup: Python 3.11 is required (found $("$PYTHON" --version 2>&1))" >&2; exit 1; }
 
 # Off-screen rendering (PyVista/VTK) goes through Mesa EGL; install its libraries if missing.
-APT_PACKAGES=(libegl1 libegl-mesa0 libgl1-mesa-dri libgl1 libxrender1)
+# iproute2 and nftables: the multi-host tests make their hosts from network namespaces (launch/netns.py).
+APT_PACKAGES=(libegl1 libegl-mesa0 libgl1-mesa-dri libgl1 libxrender1 iproute2 nftables)
 if [[ "${SKIP_APT:-0}" != 1 ]] && command -v dpkg >/dev/null 2>&1; then
   missing=()
   for p in "${APT_PACKAGES[@]}"; do dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p"); done

@@ -15,6 +15,12 @@ are not saved. Every peer writes its own part; rank 0 writes the manifest after 
 into a temporary folder that is renamed into place, then rewrites ``latest`` (atomic rename): a
 crash mid-write never leaves a corrupt "latest". A resumed run may use any number of peers: each
 peer reads all parts and keeps the particles of its block.
+
+A part or manifest that cannot be written (a full disk: ENOSPC, or any OSError) raises
+``CheckpointWriteError``, which names the path, the space the file needs and the space free; what
+was half-written is removed first. The runs (launch/run.py, nodes/peer.py) log it, skip that
+checkpoint and go on: ``latest`` keeps naming the last good one. ``latest()`` is what a launcher
+restarts a run from (launch/supervise.py).
 """
 from __future__ import annotations
 
@@ -55,18 +61,81 @@ def staging(root: Path, step: int) -> Path:
     return Path(root) / f".{folder_name(step)}.partial"
 
 
-def write_part(root: Path, step: int, rank: int, sim) -> dict:
-    """Write this peer's owned particles; returns its manifest entry."""
-    folder = staging(root, step)
-    folder.mkdir(parents=True, exist_ok=True)
+class CheckpointWriteError(RuntimeError):
+    """A checkpoint (part or manifest) that could not be written (disk full, permissions, ...): the
+    message names the path, the space it needs and the space free; what was half-written is gone."""
+
+
+def _size_text(nbytes: float) -> str:
+    for unit, scale in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if nbytes >= scale:
+            return f"{nbytes / scale:.3g} {unit}"
+    return f"{int(nbytes)} B"
+
+
+def _free_bytes(path: Path) -> int | None:
+    for folder in (Path(path), *Path(path).parents):
+        if folder.exists():
+            try:
+                return shutil.disk_usage(folder).free
+            except OSError:
+                return None
+    return None
+
+
+def _write_error(step: int, path: Path, error: OSError, need: int) -> CheckpointWriteError:
+    free = _free_bytes(path.parent)
+    space = f"needs ~{_size_text(need)}, " + (f"{_size_text(free)} free there" if free is not None else
+                                               "free space unknown")
+    return CheckpointWriteError(f"checkpoint step {step}: cannot write {path}: {error.strerror or error} "
+                                f"({space})")
+
+
+def part_arrays(sim) -> dict:
+    """The arrays of this peer's part: owned id, x, v, m and the carried (extra_*) arrays."""
     s = sim.state
     n = s.n_owned
+    return dict(id=s.id[:n], x=s.x[:n], v=s.v[:n], m=s.m[:n], **{"extra_" + k: a[:n] for k, a in s.extra.items()})
+
+
+def _write_npz(file, arrays: dict):
+    np.savez(file, **arrays)
+
+
+def write_part(root: Path, step: int, rank: int, sim) -> dict:
+    """Write this peer's owned particles; returns its manifest entry. CheckpointWriteError if it
+    cannot be written (the partial file is removed first)."""
+    folder = staging(root, step)
+    arrays = part_arrays(sim)
     path = folder / part_name(rank)
     tmp = folder / f".{part_name(rank)}.tmp"
-    with open(tmp, "wb") as f:
-        np.savez(f, id=s.id[:n], x=s.x[:n], v=s.v[:n], m=s.m[:n], **{"extra_" + k: a[:n] for k, a in s.extra.items()})
-    os.replace(tmp, path)
-    return {"file": part_name(rank), "particles": int(n), "sha256": _sha256(path)}
+    need = sum(a.nbytes for a in arrays.values()) + 512 * (len(arrays) + 1)  # + the zip's headers
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with open(tmp, "wb") as f:
+            _write_npz(f, arrays)
+        os.replace(tmp, path)
+        digest = _sha256(path)
+    except OSError as e:
+        for leftover in (tmp, path):
+            leftover.unlink(missing_ok=True)
+        try:
+            folder.rmdir()  # only if no other peer's part is in it
+        except OSError:
+            pass
+        raise _write_error(step, path, e, need) from None
+    return {"file": part_name(rank), "particles": len(arrays["id"]), "sha256": digest}
+
+
+def discard(root: Path, step: int):
+    """Remove the staging folder of ``step`` (a part failed: the checkpoint is not committed)."""
+    shutil.rmtree(staging(root, step), ignore_errors=True)
+
+
+def remove_partial(root: Path):
+    """Remove every staging folder under ``root`` (left by processes that were stopped mid-write)."""
+    for folder in Path(root).glob(".step_*.partial"):
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def sim_info(sim) -> dict:
@@ -78,23 +147,50 @@ def sim_info(sim) -> dict:
 
 def commit(root: Path, step: int, info: dict, scene_dict: dict, parts: list[dict], keep: int = 2):
     """All parts of ``step`` are written: add the manifest, rename the folder into place, point
-    ``latest`` at it and remove all but the newest ``keep`` checkpoints."""
+    ``latest`` at it and remove all but the newest ``keep`` checkpoints. CheckpointWriteError if
+    that fails: the step's folder is removed and ``latest`` still names the previous checkpoint."""
     root = Path(root)
     folder = staging(root, step)
-    manifest = dict(info, format=FORMAT, scene=scene_dict, parts=parts)
-    tmp = folder / ".manifest.json.tmp"
-    tmp.write_text(json.dumps(manifest, indent=1) + "\n")
-    os.replace(tmp, folder / "manifest.json")
     final = root / folder_name(step)
-    if final.exists():
-        shutil.rmtree(final)
-    os.replace(folder, final)
-    tmp = root / ".latest.tmp"
-    tmp.write_text(folder_name(step) + "\n")
-    os.replace(tmp, root / "latest")
-    done = sorted(p for p in root.glob("step_*") if p.is_dir())
-    for old in done[:-keep] if keep > 0 else []:
+    manifest = dict(info, format=FORMAT, scene=scene_dict, parts=parts)
+    text = json.dumps(manifest, indent=1) + "\n"
+    path = folder / "manifest.json"
+    try:
+        tmp = folder / ".manifest.json.tmp"
+        tmp.write_text(text)
+        os.replace(tmp, path)
+        if final.exists():
+            shutil.rmtree(final)
+        os.replace(folder, final)
+        path = root / "latest"
+        tmp = root / ".latest.tmp"
+        tmp.write_text(folder_name(step) + "\n")
+        os.replace(tmp, path)
+    except OSError as e:
+        (root / ".latest.tmp").unlink(missing_ok=True)
+        shutil.rmtree(folder, ignore_errors=True)
+        if _named_latest(root) != folder_name(step):
+            shutil.rmtree(final, ignore_errors=True)
+        raise _write_error(step, path, e, len(text) + 64) from None
+    # the newest by commit time, not by step: an earlier run's checkpoints in the same folder may have
+    # higher steps, and the one just committed is always kept
+    done = sorted((p for p in root.glob("step_*") if p.is_dir() and p != final), key=_committed_at)
+    for old in done[:-(keep - 1)] if keep > 1 else done:
         shutil.rmtree(old, ignore_errors=True)
+
+
+def _committed_at(folder: Path) -> float:
+    try:
+        return (folder / "manifest.json").stat().st_mtime
+    except OSError:
+        return 0.0
+
+
+def _named_latest(root: Path) -> str | None:
+    try:
+        return (Path(root) / "latest").read_text().strip()
+    except OSError:
+        return None
 
 
 @dataclass
@@ -119,6 +215,16 @@ def resolve(path: Path) -> Path:
         return path
     raise CheckpointError(f"{str(path)!r}: no checkpoint here (expected OUT/checkpoints/latest, a "
                           "checkpoints/ folder or a step_* folder with manifest.json)")
+
+
+def latest(path: Path) -> tuple[Path, int] | None:
+    """The newest complete checkpoint under ``path`` (as ``resolve`` finds it) and its step, or
+    None when there is none yet (or it is unreadable)."""
+    try:
+        folder = resolve(path)
+        return folder, int(json.loads((folder / "manifest.json").read_text())["step"])
+    except (CheckpointError, OSError, ValueError, KeyError, TypeError):
+        return None
 
 
 def load(path: Path) -> Checkpoint:

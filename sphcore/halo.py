@@ -14,18 +14,69 @@ their per-axis particle histograms, all compute the same balanced cuts
 bitwise identical because every sum runs in (cell, id) order whatever the cuts.
 
 ``NULL_HALO`` is the single-process halo. ``PeerHalo`` implements the zone model of
-``sphcore.decomposition`` over any transport endpoint with ``send(dest, tag, arrays)`` and a
-generator ``recv(source, tag)`` (nodes/transport.py). Exchange 1 has two rounds: migrants first,
-so that the ghosts each peer sends are drawn from its owned set *after* migration (a particle that
-just crossed a cut can be a third peer's ghost; only its new owner knows to send it).
+``sphcore.decomposition`` over any ``Transport`` (nodes/transport.py, nodes/zenoh_transport.py).
+Exchange 1 has two rounds: migrants first, so that the ghosts each peer sends are drawn from its
+owned set *after* migration (a particle that just crossed a cut can be a third peer's ghost; only
+its new owner knows to send it).
+
+Nothing received is used before it is checked against what this peer expects from that source at
+that step and phase: the array names, the run's dtype, the counts the protocol fixes (the rows of
+exchange 2 and later exchanges are the ghosts of exchange 1 from that peer; a reduction has
+exactly its arrays; only rank 0 announces commands), finite values, positive masses, ids of this
+scene, and positions where the protocol puts them (a migrant in this peer's block, a ghost in its
+incoming zone next to the sender's block). A message that fails raises ``Reject`` in the check;
+the transport drops and counts it and waits for the next one from that source.
 """
 from __future__ import annotations
 
 import json
+from typing import Protocol
 
 import numpy as np
 
 from sphcore.state import ParticleState
+
+
+class Reject(ValueError):
+    """A received message that is not what this peer expects from that source at that step and
+    phase: the transport drops it, counts it under ``reason`` (a short name: arrays, dtype, shape,
+    count, not finite, mass, ids, owner, stats, control) and keeps waiting for a valid one."""
+
+    def __init__(self, reason: str, detail: str):
+        super().__init__(f"{reason}: {detail}")
+        self.reason, self.detail = reason, detail
+
+
+class Transport(Protocol):
+    """What a peer's halo needs from the network (one endpoint per peer)."""
+
+    def send(self, dest: int, tag: tuple, arrays: dict) -> None:
+        """Send ``arrays`` (name -> numpy array) to peer ``dest`` under ``tag`` = (step, phase)."""
+
+    def recv(self, source: int, tag: tuple, check=None):
+        """Generator that returns the first message ``tag`` from ``source`` for which
+        ``check(arrays)`` does not raise ``Reject`` (rejected ones are dropped and counted); it
+        yields while it waits (in-process) or blocks (between processes)."""
+
+    @property
+    def drops(self) -> dict:
+        """Messages dropped so far, never used: {source: {reason: count}}."""
+
+
+def expect_arrays(msg: dict, expected: dict, what: str):
+    """``msg`` has exactly the arrays of ``expected`` (name -> (shape, dtype)), of those shapes and
+    dtypes, and floats that are finite; else Reject naming the first difference."""
+    if set(msg) != set(expected):
+        raise Reject("arrays", f"{what}: arrays {sorted(msg)[:8]}, expected {sorted(expected)}")
+    for name, (shape, dtype) in expected.items():
+        a = msg[name]
+        if a.dtype != dtype:
+            raise Reject("dtype", f"{what}: {name} is {a.dtype}, expected {np.dtype(dtype)}")
+        if a.shape != tuple(shape):
+            reason = "count" if a.shape[1:] == tuple(shape)[1:] else "shape"
+            raise Reject(reason, f"{what}: {name} has shape {list(a.shape)}, expected {list(shape)}")
+        if a.dtype.kind == "f" and not np.isfinite(a).all():
+            raise Reject("not finite", f"{what}: {name} holds NaN or Inf")
 
 
 class NullHalo:
@@ -78,6 +129,10 @@ def decode_commands(array: np.ndarray) -> list:
     return json.loads(bytes(array).decode())
 
 
+MAX_CONTROL_BYTES = 64 * 1024  # the commands of one step, as JSON
+STATS = 4                      # max |v|^2, max |a|^2, max compression, rows holding NaN/Inf
+
+
 class PeerHalo:
     """Halo of peer ``rank`` in decomposition ``dec`` over ``transport``."""
 
@@ -90,6 +145,7 @@ class PeerHalo:
         self._set_decomposition(dec)
         self.bytes_sent = {"positions": 0, "fields": 0, "reduce": 0}  # array bytes per phase (no headers)
         self.control_source = None  # rank 0: a callable returning commands to announce (nodes/control.py)
+        self.control_check = None   # a callable raising Reject for announced commands that are not commands
         self.announced = []          # commands announced in this step's reduction, applied after it
         self.rebalances = 0
         self.ghosts_received = 0  # ghost rows received over the run (the halo's minimum traffic)
@@ -111,17 +167,44 @@ class PeerHalo:
 
     _extra_shapes = {}  # the state's extra arrays (name -> a row-shaped array), set by exchange_positions
 
-    def _check_particles(self, msg, dtype, q, step):
-        """Particle arrays of a received message have the fields, lengths and dtypes we expect."""
-        n = len(msg.get("id", ()))  # the ids set the length the others must have
-        expected = {"id": ((n,), np.int64), "x": ((n, 3), dtype), "v": ((n, 3), dtype), "m": ((n,), dtype)}
-        expected.update({"extra_" + k: ((n,) + a.shape[1:], dtype) for k, a in self._extra_shapes.items()})
-        for k, (shape, dt) in expected.items():
-            a = msg.get(k)
-            if a is None or a.shape != shape or a.dtype != dt:
-                got = "missing" if a is None else f"{a.dtype}{list(a.shape)}"
-                raise RuntimeError(f"peer {self.rank}, step {step}: particle message from peer {q}: {k} is "
-                                   f"{got}, expected {np.dtype(dt)}{list(shape)}")
+    def _particles_check(self, sim, q, phase, placed, cells_out: dict):
+        """Check of a particle message (migrants, ghosts, migrate) from peer ``q``: the fields of a
+        particle in the run's dtype, finite, m > 0, distinct ids of this scene, and every particle
+        where the protocol puts it: ``placed(cells)`` (their (n, 3) grid cells) all true. The
+        accepted message's cells are left in ``cells_out["cells"]`` (the caller needs them)."""
+        dtype = sim.dtype
+
+        def check(msg):
+            what = f"{phase} from peer {q}"
+            ids = msg.get("id")
+            if ids is None or ids.ndim != 1:
+                raise Reject("arrays", f"{what}: no 1-D id array")
+            n = len(ids)
+            if n > sim.n_particles:
+                raise Reject("count", f"{what}: {n} particles, the scene has {sim.n_particles}")
+            expected = {"id": ((n,), np.int64), "x": ((n, 3), dtype), "v": ((n, 3), dtype), "m": ((n,), dtype)}
+            expected.update({"extra_" + k: ((n,) + a.shape[1:], dtype) for k, a in self._extra_shapes.items()})
+            expect_arrays(msg, expected, what)
+            if not (msg["m"] > 0).all():
+                raise Reject("mass", f"{what}: a mass m <= 0")
+            if n and (ids.min() < 0 or ids.max() >= sim.n_particles or len(np.unique(ids)) != n):
+                raise Reject("ids", f"{what}: ids outside 0..{sim.n_particles - 1} or repeated")
+            cells = sim.grid.cells_of(msg["x"])
+            if not placed(cells).all():
+                raise Reject("owner", f"{what}: particles outside the cells the protocol sends them from")
+            cells_out["cells"] = cells
+
+        return check
+
+    def _ghost_rows_check(self, q, phase, arrays, lo, hi):
+        """Check of exchange 2 and later from peer ``q``: exactly the arrays sent, one row per ghost
+        that ``q`` sent in exchange 1, in the run's dtype, finite."""
+        expected = {k: ((hi - lo,) + a.shape[1:], a.dtype) for k, a in arrays.items()}
+
+        def check(msg):
+            expect_arrays(msg, expected, f"{phase} from peer {q}")
+
+        return check
 
     def _seconds_per_particle(self, sim, n):
         """This peer's compute seconds per owned particle and step since the last rebalance."""
@@ -143,8 +226,9 @@ class PeerHalo:
         for q in self.others:
             self._send(q, (step, "balance"), hist, "balance")
         received = {self.rank: hist}
+        expected = {k: (h.shape, np.float64) for k, h in hist.items()}
         for q in self.others:
-            received[q] = yield from self.transport.recv(q, (step, "balance"))
+            received[q] = yield from self.transport.recv(q, (step, "balance"), self._histogram_check(q, expected))
         # summed in rank order on every peer, so that every peer gets the same bits and the same cuts
         total = {k: sum(received[q][k] for q in range(self.dec.n_peers)) for k in hist}
         new = type(self.dec).from_histograms(ncell, self.dec.dims, [total[f"h{a}"] for a in range(3)],
@@ -157,14 +241,22 @@ class PeerHalo:
         self.cut_moves += int(new.cuts != self.dec.cuts)
         parts = [{k: v[owner == self.rank] for k, v in own.items()}]
         for q in self.others:
-            parts.append((yield from self.transport.recv(q, (step, "migrate"))))
-            self._check_particles(parts[-1], sim.dtype, q, step)
+            check = self._particles_check(sim, q, "migrate", lambda cells: new.owner(cells) == self.rank, {})
+            parts.append((yield from self.transport.recv(q, (step, "migrate"), check)))
         new_state = _state_of(parts, sim.dtype)
         new_state.n_owned = new_state.n
         sim.state = new_state
         sim._resize_scratch(new_state.n)
         self._set_decomposition(new)
         self.rebalances += 1
+
+    @staticmethod
+    def _histogram_check(q, expected):
+        def check(msg):
+            expect_arrays(msg, expected, f"balance from peer {q}")
+            if any((msg[k] < 0).any() for k in expected):
+                raise Reject("count", f"balance from peer {q}: a negative histogram count")
+        return check
 
     def exchange_positions(self, sim):
         step = sim.step_index
@@ -188,10 +280,12 @@ class PeerHalo:
             self._send(q, (step, "migrants"), {k: v[to_q] for k, v in own.items()}, "migrants")
         parts = [own if not n_leaving else {k: v[keep] for k, v in own.items()}]
         cell_parts = [cells if not n_leaving else cells[keep]]
+        mine = self.rank
         for q in self.neighbours:
-            parts.append((yield from self.transport.recv(q, (step, "migrants"))))
-            self._check_particles(parts[-1], sim.dtype, q, step)
-            cell_parts.append(sim.grid.cells_of(parts[-1]["x"]))
+            got = {}
+            check = self._particles_check(sim, q, "migrants", lambda cells: self.dec.owner(cells) == mine, got)
+            parts.append((yield from self.transport.recv(q, (step, "migrants"), check)))
+            cell_parts.append(got["cells"])
         owned = {k: np.concatenate([p[k] for p in parts]) for k in own}
         cells = np.concatenate(cell_parts)
         # 1b: ghosts come from the owned set after migration (a migrant can be another peer's ghost)
@@ -202,8 +296,9 @@ class PeerHalo:
         ghosts = []
         first = n_own = len(owned["id"])
         for q in self.neighbours:
-            ghosts.append((yield from self.transport.recv(q, (step, "positions"))))
-            self._check_particles(ghosts[-1], sim.dtype, q, step)
+            check = self._particles_check(sim, q, "positions",
+                                          lambda cells, q=q: self.dec.outgoing(cells, q, mine), {})
+            ghosts.append((yield from self.transport.recv(q, (step, "positions"), check)))
             count = len(ghosts[-1]["id"])
             self.ghosts_received += count
             self._ghost_rows[q] = (first, first + count)
@@ -229,13 +324,10 @@ class PeerHalo:
             rows = where[self._sent_rows[q]]
             self._send(q, (step, phase), {k: a[rows] for k, a in arrays.items()}, kind or phase)
         for q in self.neighbours:
-            msg = yield from self.transport.recv(q, (step, phase))
             lo, hi = self._ghost_rows[q]
+            msg = yield from self.transport.recv(q, (step, phase), self._ghost_rows_check(q, phase, arrays, lo, hi))
             rows = where[lo:hi]
             for k, a in arrays.items():
-                if msg[k].shape != (hi - lo,) + a.shape[1:]:
-                    raise RuntimeError(f"peer {self.rank}, step {step}: {phase} message from peer {q} has {k} of "
-                                       f"shape {msg[k].shape}, expected {(hi - lo,) + a.shape[1:]}")
                 a[rows] = msg[k]
 
     def reduce_sum(self, sim, phase, value: int):
@@ -246,8 +338,10 @@ class PeerHalo:
         for q in self.others:
             self._send(q, (step, phase), message, "reduce")
         total = int(value)
+        expected = {"sum": ((1,), np.int64)}
         for q in self.others:
-            msg = yield from self.transport.recv(q, (step, phase))
+            msg = yield from self.transport.recv(
+                q, (step, phase), lambda m, q=q: expect_arrays(m, expected, f"{phase} from peer {q}"))
             total += int(msg["sum"][0])
         return total
 
@@ -265,9 +359,43 @@ class PeerHalo:
         result = mine.copy()
         self.announced = list(commands)
         for q in self.others:
-            msg = yield from self.transport.recv(q, (step, "reduce"))
+            got = {}
+            msg = yield from self.transport.recv(q, (step, "reduce"), self._reduce_check(sim, q, got))
             result[:3] = np.maximum(result[:3], msg["stats"][:3])
             result[3] += msg["stats"][3]
-            if q == 0 and "control" in msg:
-                self.announced = decode_commands(msg["control"])
+            if "commands" in got:
+                self.announced = got["commands"]
         return result[0], result[1], result[2], int(result[3])
+
+    def _reduce_check(self, sim, q, got: dict):
+        """Check of peer ``q``'s reduction message: ``stats`` (non-negative, finite, a whole count of
+        bad rows within the scene's particles) and, from rank 0 only, ``control``: commands that
+        ``control_check`` accepts (left in ``got["commands"]``)."""
+
+        def check(msg):
+            what = f"reduce from peer {q}"
+            if "control" in msg and q != 0:
+                raise Reject("control", f"{what}: a control array; only rank 0 announces commands")
+            control = msg.get("control")
+            expected = {"stats": ((STATS,), np.float64)}
+            if control is not None:
+                expected["control"] = ((control.size,), np.uint8)
+            expect_arrays(msg, expected, what)
+            stats = msg["stats"]
+            if (stats < 0).any() or stats[3] != np.floor(stats[3]) or stats[3] > sim.n_particles:
+                raise Reject("stats", f"{what}: statistics {stats.tolist()} are not maxima of squares and a count")
+            got.pop("commands", None)
+            if control is not None:
+                if len(control) > MAX_CONTROL_BYTES:
+                    raise Reject("control", f"{what}: {len(control)} bytes of commands, at most {MAX_CONTROL_BYTES}")
+                try:
+                    commands = decode_commands(control)
+                except (ValueError, RecursionError) as e:
+                    raise Reject("control", f"{what}: unreadable commands ({e})") from None
+                if self.control_check is not None:
+                    self.control_check(commands)
+                elif not isinstance(commands, list):
+                    raise Reject("control", f"{what}: commands are not a list")
+                got["commands"] = commands
+
+        return check

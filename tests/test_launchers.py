@@ -63,14 +63,17 @@ def test_hosts_file_launcher_runs_one_peer_per_line(tmp_path, reference):
 
 
 def test_slurm_task_script_computes_every_endpoint(tmp_path, reference):
-    # Given three SLURM tasks on one node (SLURM's variables set by hand)
+    # Given three SLURM tasks on one node (SLURM's variables set by hand) and the job's credentials
     base = free_ports(1)[0]
     out = tmp_path / "out"
+    tls = tmp_path / "tls"
+    assert main(["certs", str(tls), "--peer-host", "127.0.0.1", "--peer-host", "127.0.0.1",
+                 "--peer-host", "127.0.0.1"]) == 0
     procs = []
     for rank in range(3):
         env = dict(os.environ, SLURM_PROCID=str(rank), SLURM_NTASKS="3", SLURM_TASKS_PER_NODE="3",
                    SLURM_JOB_ID="test", SLURM_CPUS_PER_TASK="1", SPH_NODES="127.0.0.1",
-                   SPH_LISTEN_HOST="127.0.0.1", SPH_BASE_PORT=str(base), SPH_PYTHON=sys.executable)
+                   SPH_LISTEN_HOST="127.0.0.1", SPH_BASE_PORT=str(base), SPH_PYTHON=sys.executable, SPH_TLS=str(tls))
         procs.append(subprocess.Popen(["bash", "launch/slurm/peer.sh", DAM, *SMALL, "--out", str(out)], cwd=ROOT,
                                       env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
     # When they run, each computing the others' endpoints from its rank

@@ -20,7 +20,7 @@ SMALL = ["--set", "particles.spacing=0.04", "--precision", "f64"]
 
 
 def sph(*args, **kw):
-    return subprocess.Popen([sys.executable, "-m", "launch.cli", *args], cwd=ROOT, text=True,
+    return subprocess.Popen([sys.executable, "-m", "launch.cli", *map(str, args)], cwd=ROOT, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True, **kw)
 
 
@@ -59,11 +59,14 @@ class Lines:
             self.lines.append(line)
             self.arrived.append(time.perf_counter())
 
-    def wait_for(self, text, timeout):
+    def wait_for(self, text, timeout, proc=None):
+        """Until a line contains ``text``; gives up early when ``proc`` has ended."""
         deadline = time.time() + timeout
         while time.time() < deadline:
             if any(text in line for line in self.lines):
                 return
+            if proc is not None and proc.poll() is not None:
+                break
             time.sleep(0.05)
         raise AssertionError(f"{text!r} not seen in {timeout} s:\n{''.join(self.lines)}")
 

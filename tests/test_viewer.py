@@ -96,10 +96,11 @@ def test_a_viewer_joins_a_running_run_and_sees_the_same_frames(tmp_path):
     log.wait_for("peer 0 sph.run INFO step 100", timeout=120)
     launch = next(line for line in log.lines if "endpoints" in line)
     run_id = re.search(r"run (\w+):", launch).group(1)
-    endpoints = re.findall(r"(tcp/[\d.]+:\d+)", launch)
+    endpoints = re.findall(r"(tls/[\d.]+:\d+)", launch)
     # When a second viewer joins by connecting to the peers' endpoints
     joined = subprocess.run([sys.executable, "-m", "launch.cli", "viewer", "configs/dam_break.toml", "--run-id",
-                             run_id, *sum((["--connect", e] for e in endpoints), []), "--record",
+                             run_id, *sum((["--connect", e] for e in endpoints), []), "--world", "2",
+                             "--tls", str(tmp_path / "run" / "tls"), "--record",
                              str(tmp_path / "joined.rrd"), "--set", "particles.spacing=0.04",
                              "--set", "render.every=50", "--idle-timeout", "60"],
                             cwd=ROOT, capture_output=True, text=True, timeout=300)

@@ -6,7 +6,10 @@
 #   SPH_PYTHON      Python with sphfluid installed (default: python3)
 #   SPH_BASE_PORT   first port on every node (default: 7447)
 #   SPH_NODES       space-separated node names, in SLURM order (default: scontrol show hostnames)
-#   SPH_LISTEN_HOST address to listen on (default: 0.0.0.0)
+#   SPH_LISTEN_HOST address to listen on (default: this task's node name, as the others dial it)
+#   SPH_TLS         the job's credentials folder (sph.sbatch makes it with `sph certs`; required
+#                   unless SPH_INSECURE=1)
+#   SPH_INSECURE    1: plain TCP, no authentication (refused unless every node is a loopback address)
 set -euo pipefail
 config=${1:?usage: peer.sh SCENE.toml [sph peer options]}
 shift
@@ -25,10 +28,16 @@ if [ $(( ${#nodes[@]} * per_node )) -lt "$world" ]; then
     exit 2
 fi
 local_id=$(( rank % per_node ))
-args=(--rank "$rank" --world "$world" --run-id "slurm-${SLURM_JOB_ID:-0}"
-      --listen "tcp/${SPH_LISTEN_HOST:-0.0.0.0}:$(( base + local_id ))")
+if [ "${SPH_INSECURE:-0}" = 1 ]; then
+    scheme=tcp; security=(--insecure)
+else
+    scheme=tls; security=(--tls "${SPH_TLS:?SPH_TLS is unset: make the credentials of the job with sph certs, as sph.sbatch does}")
+fi
+me=${nodes[$(( rank / per_node ))]}
+args=(--rank "$rank" --world "$world" --run-id "slurm-${SLURM_JOB_ID:-0}" "${security[@]}"
+      --listen "$scheme/${SPH_LISTEN_HOST:-$me}:$(( base + local_id ))")
 for (( r = 0; r < rank; r++ )); do   # connect to every lower rank: a full mesh
-    args+=(--connect "tcp/${nodes[$(( r / per_node ))]}:$(( base + r % per_node ))")
+    args+=(--connect "$scheme/${nodes[$(( r / per_node ))]}:$(( base + r % per_node ))")
 done
 if [ -n "${SLURM_CPUS_PER_TASK:-}" ]; then
     args+=(--threads "$SLURM_CPUS_PER_TASK")
