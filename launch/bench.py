@@ -94,7 +94,11 @@ def run_bench(args) -> int:
             raise UsageError("--backend cuda: --external and --peers compare CPU runs; run them without it")
     results = []
     started = datetime.now(timezone.utc)
-    for target in args.sizes:
+    if args.network:
+        from launch.bench_network import network_cases
+        dx = spacing_for(scene_path, args.sizes[0])
+        results = network_cases(scene_path, _fixed(scene_path, dx), args.steps, args.precisions[0], args.repeat)
+    for target in ([] if args.network else args.sizes):
         dx = spacing_for(scene_path, target)
         for precision in args.precisions:
             for threads in (args.threads if args.backend == "cpu" else args.threads[:1]):
@@ -105,8 +109,9 @@ def run_bench(args) -> int:
             results += _external(dx, args.steps, args.threads)
         if args.peers != [1]:
             results += _peer_cases(scene_path, dx, args)
-    _print_ratios(results)
-    _print_peer_ratios(results)
+    if not args.network:
+        _print_ratios(results)
+        _print_peer_ratios(results)
     report = {
         "date": started.isoformat(timespec="seconds"), "command": "sph " + " ".join(sys.argv[1:]),
         "machine": {"platform": platform.platform(), "cpu": _cpu_name(), "cores": numba.config.NUMBA_NUM_THREADS,
