@@ -280,6 +280,7 @@ def test_a_killed_and_a_stopped_peer_are_restarted_from_the_newest_checkpoint_wi
     assert all(gone(pid) for pid in [*attempt1.values(), *attempt2.values()])
 
 
+@pytest.mark.slow  # the default suite recovers a lost hosts-file peer in test_multihost (namespace hosts)
 def test_a_lost_peer_of_a_hosts_file_run_is_restarted_on_its_host(tmp_path, reference, launched):
     # Given a 2-"host" run (this machine, through an ssh stand-in that exits 255 when the remote
     # command is killed by a signal, as ssh does) with checkpoints and one restart allowed

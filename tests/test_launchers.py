@@ -1,8 +1,10 @@
 """Many-machine launchers, exercised on this machine: the hosts-file launcher (with an ssh stand-in
 that runs the command locally) and the SLURM task script (with SLURM's variables set by hand)."""
 import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -86,3 +88,75 @@ def test_slurm_task_script_refuses_tasks_that_do_not_fit():
     env = dict(os.environ, SLURM_PROCID="0", SLURM_NTASKS="4", SLURM_NTASKS_PER_NODE="1", SPH_NODES="a b")
     done = subprocess.run(["bash", "launch/slurm/peer.sh", DAM], cwd=ROOT, env=env, capture_output=True, text=True)
     assert done.returncode == 2 and "4 tasks do not fit 2 nodes x 1 tasks per node" in done.stderr
+
+
+FAKE_SRUN = '''import os, signal, subprocess, sys, time
+args = [a for a in sys.argv[1:] if not a.startswith("--kill-on-bad-exit")]
+n = int(os.environ["SLURM_NTASKS"])
+procs = [subprocess.Popen(args, env=dict(os.environ, SLURM_PROCID=str(r), SLURM_LOCALID=str(r))) for r in range(n)]
+while True:  # --kill-on-bad-exit: the first task that fails takes the others down
+    codes = [p.poll() for p in procs]
+    bad = [c for c in codes if c not in (None, 0)]
+    if bad or all(c is not None for c in codes):
+        break
+    time.sleep(0.05)
+for p in procs:
+    if p.poll() is None:
+        p.kill()
+    p.wait()
+sys.exit(0 if not bad else (bad[0] if bad[0] > 0 else 128 - bad[0]))
+'''
+
+
+def test_slurm_batch_script_restarts_the_tasks_from_the_newest_checkpoint(tmp_path):
+    # Given the batch script with a stand-in srun (two tasks on this node), TLS and one restart allowed
+    scene = ["configs/dam_break_2d.toml", "--set", "particles.spacing=0.01", "--precision", "f64",
+             "--steps", "600", "--checkpoint-every", "40"]
+    assert main(["run", *scene, "--out", str(tmp_path / "one"), "--quiet"]) == 0
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    (bin_dir / "srun").write_text(f"#!{sys.executable}\n" + FAKE_SRUN)
+    (bin_dir / "srun").chmod(0o755)
+    out = tmp_path / "out"
+    env = dict(os.environ, PATH=f"{bin_dir}:{os.environ['PATH']}", SLURM_NTASKS="2", SLURM_NTASKS_PER_NODE="2",
+               SLURM_JOB_ID="restart", SLURM_SUBMIT_DIR=str(ROOT), SPH_NODES="127.0.0.1",
+               SPH_BASE_PORT=str(free_ports(1)[0]), SPH_PYTHON=sys.executable, SPH_RESTARTS="1",
+               SPH_TLS=str(tmp_path / "tls"))
+    job = subprocess.Popen(["bash", "launch/slurm/sph.sbatch", *scene, "--out", str(out)], cwd=ROOT, env=env,
+                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        # When task 1 is killed after the first checkpoint
+        deadline = time.monotonic() + 120
+        while not (out / "checkpoints" / "latest").exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert (out / "checkpoints" / "latest").exists()
+        victims = [pid for pid, cmd in peers_running() if "--rank" in cmd and cmd[cmd.index("--rank") + 1] == "1"
+                   and str(out) in " ".join(cmd)]
+        assert victims
+        for pid in victims:
+            os.kill(pid, signal.SIGKILL)
+        err = job.communicate(timeout=300)[1]
+    finally:
+        if job.poll() is None:
+            os.killpg(job.pid, signal.SIGKILL)
+    # Then the job restarts both tasks from the checkpoint and ends with one process's bits
+    assert job.returncode == 0, err[-3000:]
+    assert "restarting from" in err and "restart 1 of 1" in err, err[-3000:]
+    one, got = np.load(tmp_path / "one" / "final.npz"), np.load(out / "final.npz")
+    for key in ("id", "x", "v", "rho"):
+        assert np.array_equal(one[key], got[key]), key
+    assert not (tmp_path / "tls").exists()  # the job's credentials went with it
+
+
+def peers_running():
+    """(pid, argv) of every `launch.cli peer` process on this machine."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                cmd = (entry / "cmdline").read_bytes().decode().split("\0")
+            except OSError:
+                continue
+            if "launch.cli" in cmd and "peer" in cmd:
+                found.append((int(entry.name), cmd))
+    return found
