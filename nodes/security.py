@@ -28,6 +28,7 @@ import datetime
 import ipaddress
 import json
 import os
+import re
 import stat
 from dataclasses import dataclass
 from pathlib import Path
@@ -98,10 +99,19 @@ def make_run_credentials(folder: Path, peer_hosts: list[list[str]], viewer_hosts
     from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
     folder = Path(folder)
-    if folder.exists() and any(folder.iterdir()):
-        raise SecurityError(f"{folder}: not empty; credentials are made in a new folder (remove it first)")
-    folder.mkdir(parents=True, exist_ok=True, mode=0o700)
-    os.chmod(folder, 0o700)
+    if not 1 <= days <= 3650:
+        raise SecurityError(f"--days {days}: a certificate is valid for 1 to 3650 days")
+    for hosts in list(peer_hosts) + [list(viewer_hosts)]:
+        for h in hosts:
+            check_host(h)
+    if folder.exists() and (not folder.is_dir() or any(folder.iterdir())):
+        raise SecurityError(f"{folder}: exists and is not an empty folder; credentials are made in a new "
+                            "folder (remove it first)")
+    try:
+        folder.mkdir(parents=True, exist_ok=True, mode=0o700)
+        os.chmod(folder, 0o700)
+    except OSError as e:
+        raise SecurityError(f"{folder}: cannot make the credentials folder: {e.strerror}") from None
     now = datetime.datetime.now(datetime.timezone.utc)
     begin, end = now - datetime.timedelta(minutes=10), now + datetime.timedelta(days=days)
 
@@ -140,6 +150,22 @@ def make_run_credentials(folder: Path, peer_hosts: list[list[str]], viewer_hosts
         _write_private(folder / f"{ident.name}.pem", ident.cert_pem)
         _write_private(folder / f"{ident.name}.key", ident.key_pem)
     return ids
+
+
+_HOSTNAME = re.compile(r"^(?=.{1,253}$)[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?"
+                       r"(\.[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?)*$")
+
+
+def check_host(host: str) -> str:
+    """A host as a certificate can name it: an IPv4/IPv6 address or a DNS name."""
+    try:
+        ipaddress.ip_address(host)
+        return host
+    except ValueError:
+        pass
+    if not _HOSTNAME.match(host):
+        raise SecurityError(f"host {host!r}: not an IP address or a DNS name (letters, digits, '-' and '.')")
+    return host
 
 
 def _write_private(path: Path, data: bytes):

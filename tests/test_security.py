@@ -152,3 +152,23 @@ def test_a_tls_run_and_an_insecure_run_give_the_same_bits(tmp_path):
     for key in ("id", "x", "v", "rho"):
         assert np.array_equal(one[key], two[key]), key
     assert (tmp_path / "tls" / "tls" / "ca.pem").exists() and not (tmp_path / "plain" / "tls").exists()
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["--peer-host", "bad host!"], "not an IP address or a DNS name"),
+    (["--peers", "1", "--days", "0"], "valid for 1 to 3650 days"),
+    (["--peers", "0"], "at least one peer"),
+])
+def test_sph_certs_refuses_bad_input_and_writes_nothing(tmp_path, capsys, argv, fragment):
+    assert main(["certs", str(tmp_path / "c"), *argv]) == 2
+    assert fragment in capsys.readouterr().err
+    assert not (tmp_path / "c").exists()
+
+
+def test_sph_certs_refuses_a_file_or_a_used_folder(tmp_path, capsys):
+    (tmp_path / "file").write_text("x")
+    assert main(["certs", str(tmp_path / "file"), "--peers", "1"]) == 2
+    assert "not an empty folder" in capsys.readouterr().err
+    assert main(["certs", str(tmp_path / "c"), "--peers", "2"]) == 0
+    assert main(["certs", str(tmp_path / "c"), "--peers", "2"]) == 2
+    assert "not an empty folder" in capsys.readouterr().err
