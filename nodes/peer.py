@@ -12,11 +12,13 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import time
 from pathlib import Path
 
 import numpy as np
 
+from sphcore import checkpoint
 from sphcore.decomposition import Decomposition, choose_dims
 from sphcore.halo import PeerHalo, Reject
 from sphcore.solver import Simulation
@@ -380,10 +382,23 @@ def _json_of(array, what: str):
         raise Reject("malformed", f"{what}: not JSON ({e})") from None
 
 
+_SHA256 = re.compile(r"^[0-9a-f]{64}$")
+
+
 def _entry_check(msg: dict):
-    """A checkpoint entry (rank 0 commits what every peer wrote): a JSON object."""
-    if set(msg) != {"entry"} or not isinstance(_json_of(msg["entry"], "checkpoint entry"), dict):
-        raise Reject("arrays", f"checkpoint entry: arrays {sorted(msg)[:8]}, expected a JSON object in 'entry'")
+    """A checkpoint entry (rank 0 commits what every peer wrote into the manifest): a JSON object,
+    either {"error": text} or {"file": peer_NNNN.npz, "particles": n, "sha256": hex}; a file name
+    with a path in it would make the manifest point outside the checkpoint."""
+    if set(msg) != {"entry"}:
+        raise Reject("arrays", f"checkpoint entry: arrays {sorted(msg)[:8]}, expected 'entry'")
+    entry = _json_of(msg["entry"], "checkpoint entry")
+    if isinstance(entry, dict) and set(entry) == {"error"} and isinstance(entry["error"], str):
+        return
+    if not (isinstance(entry, dict) and set(entry) == {"file", "particles", "sha256"}
+            and isinstance(entry["file"], str) and checkpoint.is_part_name(entry["file"])
+            and type(entry["particles"]) is int and entry["particles"] >= 0
+            and isinstance(entry["sha256"], str) and _SHA256.match(entry["sha256"])):
+        raise Reject("malformed", "checkpoint entry: expected {file: peer_NNNN.npz, particles, sha256} or {error}")
 
 
 def _final_check(sim: Simulation, q: int, own: dict, parts: list, peers: list):

@@ -27,6 +27,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -46,6 +47,14 @@ def folder_name(step: int) -> str:
 
 def part_name(rank: int) -> str:
     return f"peer_{rank:04d}.npz"
+
+
+_PART = re.compile(r"^peer_\d{4,}\.npz$")
+
+
+def is_part_name(name: str) -> bool:
+    """A part's file name as part_name writes it: a bare peer_NNNN.npz, no folder in it."""
+    return bool(_PART.match(name))
 
 
 def _sha256(path: Path) -> str:
@@ -232,13 +241,20 @@ def load(path: Path) -> Checkpoint:
     folder = resolve(path)
     try:
         manifest = json.loads((folder / "manifest.json").read_text())
-    except (OSError, ValueError) as e:
-        raise CheckpointError(f"{folder}/manifest.json: unreadable ({e})") from None
-    if manifest.get("format") != FORMAT:
-        raise CheckpointError(f"{folder}: format {manifest.get('format')!r}, this version reads {FORMAT!r}")
+    except (OSError, ValueError, RecursionError) as e:
+        raise CheckpointError(f"{folder}/manifest.json: unreadable ({str(e)[:200]})") from None
+    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
+        found = manifest.get("format") if isinstance(manifest, dict) else type(manifest).__name__
+        raise CheckpointError(f"{folder}: format {found!r}, this version reads {FORMAT!r}")
+    entries = manifest.get("parts")
+    if not (isinstance(entries, list) and entries and all(
+            isinstance(e, dict) and isinstance(e.get("file"), str) and is_part_name(e["file"])
+            and isinstance(e.get("sha256"), str) for e in entries)):
+        raise CheckpointError(f"{folder}/manifest.json: 'parts' must list the parts as "
+                              "{file: peer_NNNN.npz, particles, sha256}")
     parts = []
-    for entry in manifest["parts"]:
-        p = folder / entry["file"]
+    for entry in entries:
+        p = folder / entry["file"]  # a bare peer_NNNN.npz (checked above): never outside the folder
         if not p.is_file():
             raise CheckpointError(f"{folder}: part {entry['file']} is missing")
         if _sha256(p) != entry["sha256"]:

@@ -107,3 +107,19 @@ def test_resume_refuses_a_scene_overrides_and_other_precision(saved, capsys):
     assert "the checkpoint is f64" in capsys.readouterr().err
     assert main(["run", "--resume", str(saved.parent.parent / "nothing"), "--quiet"]) == 2
     assert "no checkpoint here" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("manifest, fragment", [
+    ("[1, 2]", "format 'list'"),
+    ("[" * 100000 + "]" * 100000, "unreadable"),
+    ('{"format": "sphfluid-checkpoint-1"}', "'parts' must list the parts"),
+    ('{"format": "sphfluid-checkpoint-1", "parts": [{"file": "../../peer_0000.npz", "sha256": "0"}]}',
+     "'parts' must list the parts"),
+    ('{"format": "sphfluid-checkpoint-1", "parts": [{"file": "/etc/passwd", "sha256": "0"}]}',
+     "'parts' must list the parts"),
+])
+def test_a_hostile_manifest_is_refused_without_reading_outside_the_checkpoint(saved, capsys, manifest, fragment):
+    (saved / "step_00000020" / "manifest.json").write_text(manifest)
+    assert resume(saved / "step_00000020") == 2
+    err = capsys.readouterr().err
+    assert fragment in err and "Traceback" not in err, err
