@@ -765,7 +765,7 @@ def _cmd_peer(args) -> int:
     if args.world < 1 or args.rank >= args.world:
         raise UsageError(f"--rank {args.rank} --world {args.world}: need 0 <= rank < world")
     if not args.listen and not args.connect:
-        raise UsageError("give --listen and/or --connect endpoints (e.g. --listen tcp/127.0.0.1:7447)")
+        raise UsageError("give --listen and/or --connect endpoints (e.g. --listen tls/127.0.0.1:7447)")
     from nodes import wire
     try:
         wire.check_run_id(args.run_id)
