@@ -40,7 +40,7 @@ def test_credentials_are_private_and_the_ca_key_is_gone(creds):
 
 def test_credentials_refuse_a_key_others_can_read_and_a_used_folder(tmp_path, creds):
     folder, _ = creds
-    with pytest.raises(security.SecurityError, match="not empty"):
+    with pytest.raises(security.SecurityError, match="not an empty folder"):
         security.make_run_credentials(folder, [["127.0.0.1"]])
     loose = tmp_path / "loose"
     security.make_run_credentials(loose, [["127.0.0.1"]])
