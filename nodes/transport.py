@@ -181,7 +181,21 @@ class InProcessNetwork:
         self._mail.setdefault((dest, source, tag), []).append(dict(arrays))
 
 
-class InProcessEndpoint:
+class CountsDrops:
+    """What an endpoint dropped, from its ``_drops`` (a DropLog): the same two views for every
+    transport, so the peer's summary reads them alike."""
+
+    @property
+    def drops(self) -> dict:
+        """Messages dropped so far: {source: {reason: count}} (source: a rank, "controller" or "other")."""
+        return self._drops.counts
+
+    @property
+    def dropped(self) -> int:
+        return self._drops.total
+
+
+class InProcessEndpoint(CountsDrops):
     def __init__(self, network: InProcessNetwork, rank: int):
         self.network = network
         self.rank = rank
@@ -215,10 +229,3 @@ class InProcessEndpoint:
                 return arrays
             yield key
 
-    @property
-    def drops(self) -> dict:
-        return self._drops.counts
-
-    @property
-    def dropped(self) -> int:
-        return self._drops.total

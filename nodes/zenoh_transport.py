@@ -31,7 +31,7 @@ import threading
 import time
 
 from nodes import wire
-from nodes.transport import STEP_WINDOW, DropLog, Mailbox
+from nodes.transport import STEP_WINDOW, CountsDrops, DropLog, Mailbox
 from sphcore.halo import Reject
 
 log = logging.getLogger("sph.zenoh")
@@ -78,7 +78,7 @@ def zenoh_config(listen: list[str], connect: list[str], lease_ms: int = LEASE_MS
     return conf
 
 
-class ZenohEndpoint:
+class ZenohEndpoint(CountsDrops):
     """Peer ``rank`` of a ``world``-peer run ``run`` on Zenoh."""
 
     def __init__(self, run: str, rank: int, world: int, listen: list[str], connect: list[str],
@@ -211,15 +211,6 @@ class ZenohEndpoint:
         step window ahead are not from a peer of this run (``wait`` moves it on as well)."""
         with self._cv:
             self._mail.advance(step)
-
-    @property
-    def drops(self) -> dict:
-        """Messages dropped so far: {source: {reason: count}} (source: a rank, "controller" or "other")."""
-        return self._drops.counts
-
-    @property
-    def dropped(self) -> int:
-        return self._drops.total
 
     # -- the transport interface ------------------------------------------------------------------
     def send(self, dest: int, tag: tuple, arrays: dict):
