@@ -79,19 +79,12 @@ def bench_case(scene_path: Path, dx: float, precision: str, threads: int, steps:
 
 
 def run_bench(args) -> int:
+    """``sph bench`` (its options checked by launch/cli.py ``check_bench``)."""
     scene_path = args.config or DEFAULT_SCENE
-    threads_available = numba.config.NUMBA_NUM_THREADS
-    for t in args.threads:
-        if t < 1 or t > threads_available:
-            from launch.cli import UsageError
-            raise UsageError(f"--threads {t}: this machine allows 1..{threads_available}")
     device = "cpu"
     if args.backend == "cuda":
-        from sphcore.backends import cuda
+        from sphcore.backends import cuda  # loads numba-cuda: only for a CUDA run
         device = cuda.require()
-        if args.external or args.peers != [1]:
-            from launch.cli import UsageError
-            raise UsageError("--backend cuda: --external and --peers compare CPU runs; run them without it")
     results = []
     started = datetime.now(timezone.utc)
     if args.network:

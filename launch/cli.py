@@ -361,7 +361,7 @@ def main(argv: list[str] | None = None) -> int:
                         format="%(asctime)s %(name)s %(levelname)s %(message)s", datefmt="%H:%M:%S")
     # numba-cuda logs every device allocation and free at INFO: keep it to warnings unless --verbose
     logging.getLogger("numba").setLevel(logging.INFO if args.verbose else logging.WARNING)
-    from nodes.zenoh_transport import TransportError
+    from nodes.endpoint import TransportError
     from sphcore.backends import BackendUnavailable
     from sphcore.scene import SceneError
     from sphcore.solver import SimulationError
@@ -407,6 +407,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "scene":
             return _cmd_scene(args)
         if args.command == "bench":
+            _check_bench(args)
             from launch.bench import run_bench
             return run_bench(args)
     except (SceneError, UsageError, BackendUnavailable, SecurityError, SinkError) as e:
@@ -456,6 +457,20 @@ def _output_folder(args, scene) -> Path:
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {str(out)!r}: exists and is not a folder")
     return out
+
+
+def _check_bench(args):
+    """sph bench's options, before anything runs."""
+    import numba
+    threads_available = numba.config.NUMBA_NUM_THREADS
+    for t in args.threads:
+        if t < 1 or t > threads_available:
+            raise UsageError(f"--threads {t}: this machine allows 1..{threads_available}")
+    if args.backend == "cuda":
+        from sphcore.backends import cuda
+        cuda.require()
+        if args.external or args.peers != [1]:
+            raise UsageError("--backend cuda: --external and --peers compare CPU runs; run them without it")
 
 
 def _check_peers(scene, n_peers: int):
@@ -791,7 +806,7 @@ def _cmd_peer(args) -> int:
     from nodes import supervise
     if args.watch_stdin:  # after anything that reads a first line from stdin (--tls-stdin)
         supervise.watch_stdin(supervise.exit_when_launcher_gone(f"peer {args.rank}", EXIT_PEER))
-    from nodes.peer import run_peer
+    from nodes.driver import RunPlan, run_peer
     from nodes.zenoh_transport import ZenohEndpoint
     try:
         endpoint = ZenohEndpoint(args.run_id, args.rank, args.world, args.listen, args.connect, args.timeout,
@@ -799,12 +814,12 @@ def _cmd_peer(args) -> int:
     except Exception as e:  # zenoh raises ZError for endpoints it cannot use
         raise UsageError(f"cannot open Zenoh with --listen {args.listen} --connect {args.connect}: {e}") from None
     try:
-        run_peer(scene, args.rank, args.world, endpoint, out if args.rank == 0 else None,
-                 args.precision or (ckpt.manifest["precision"] if ckpt else None), args.steps, args.until,
-                 progress=not args.quiet, startup_timeout=args.timeout, frames=not args.no_frames, resume=ckpt,
-                 checkpoint_every=args.checkpoint_every, checkpoint_root=out / "checkpoints",
-                 backend=args.backend, device=args.device,
-                 report=supervise.ProgressReport() if args.report_progress else None, restarts=restarts)
+        plan = RunPlan(args.steps, args.until, out if args.rank == 0 else None, args.checkpoint_every,
+                       out / "checkpoints", progress=not args.quiet,
+                       report=supervise.ProgressReport() if args.report_progress else None, restarts=restarts)
+        run_peer(scene, args.rank, args.world, endpoint, plan,
+                 args.precision or (ckpt.manifest["precision"] if ckpt else None), args.backend, args.device,
+                 resume=ckpt, frames=not args.no_frames, startup_timeout=args.timeout)
     finally:
         endpoint.close()
     return 0

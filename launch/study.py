@@ -22,7 +22,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from launch.bench import _cpu_name
+from launch.bench import DEFAULT_SCENE, _cpu_name, spacing_for
 from launch.validate import CaseOptions, dam_break, oscillating_drop, taylor_green
 
 log = logging.getLogger("sph.study")
@@ -92,7 +92,6 @@ def run_config(case: str, cfg: dict) -> dict:
 def term_costs(particles: int = 20_000, steps: int = 40) -> list[dict]:
     """Median step time of the 3D dam break with each optional term on, against the same run with
     all of them off (whose step list does not contain them at all)."""
-    from launch.bench import DEFAULT_SCENE, spacing_for
     from sphcore.scene import load_scene
     from sphcore.solver import Simulation
     dx = spacing_for(DEFAULT_SCENE, particles)

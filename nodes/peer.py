@@ -1,9 +1,11 @@
 """A peer: owns one block of the decomposition, steps it, exchanges halos, reports at the end.
 
 Every peer builds the whole scene's particles (same global ids as a single process) and keeps the
-ones in its block (``take_block``); no master sends it anything. ``run_peer`` steps the block over
-a blocking transport (a ``ZenohEndpoint``) with the same loop as a single-process run
-(launch/run.py ``advance``), then gathers to rank 0, which writes the contract outputs:
+ones in its block (``take_block``); no master sends it anything. The run driver
+(``nodes.driver.drive``) steps the block with the same loop as a single-process run, applies
+control commands (``Controls``), records per-step statistics (``PeerRecorder``), then gathers to
+rank 0, which checks what it receives (``_final_check``, ``_entry_check``), writes the contract
+outputs and adds ``peer_summary``:
 
     every rank -> 0   "final": owned id, x, v, rho + this peer's statistics (JSON as bytes)
     0 -> every rank   "bye":   outputs written; peers close (rank 0 closes last)
@@ -13,16 +15,15 @@ from __future__ import annotations
 import json
 import logging
 import re
-import time
-from pathlib import Path
 
 import numpy as np
 
+from nodes import control
+from nodes.endpoint import PeerTimeout
 from sphcore import checkpoint
 from sphcore.decomposition import Decomposition, choose_dims
-from sphcore.halo import PeerHalo, Reject
+from sphcore.halo import Reject, expect_arrays
 from sphcore.solver import Simulation
-from sphcore.state import merge_by_id
 
 log = logging.getLogger("sph.peer")
 
@@ -104,7 +105,6 @@ class Controls:
     def _accept(self, entry: dict, step: int) -> dict | None:
         """A received command ({"id", "text"}) parsed and validated, or None after acknowledging
         its rejection (``step``: the step the run is at, for the ack)."""
-        from nodes import control
         try:
             cmd = control.validate(self.sim.scene, control.parse(entry["text"]), self.cameras)
             if cmd["op"] == "resume" and self._paused_at is None:
@@ -123,7 +123,6 @@ class Controls:
     def _announce(self) -> list:
         """Rank 0, in the step's reduction: the commands to announce now, those held during a pause
         first; each new one is acknowledged as accepted at the step after which it is applied."""
-        from nodes import control
         step = self.sim.step_index
         out, self._held = self._held, []
         for entry in self.endpoint.take_commands():
@@ -139,14 +138,13 @@ class Controls:
         return out
 
     def _check_announced(self, commands):
-        from nodes import control
         try:
             control.check_announced(self.sim.scene, commands, self.cameras)
         except ValueError as e:
             raise Reject("control", str(e)) from None
 
     def after_step(self):
-        from nodes import control
+        """Generator: apply the commands announced in this step's reduction (a pause waits here)."""
         commands, self.halo.announced = self.halo.announced, []
         for cmd in commands:
             step = self.sim.step_index
@@ -162,12 +160,11 @@ class Controls:
             elif cmd["op"] == "color_by" and self.maker is not None:
                 self.maker.renderer.set_quantity(cmd["quantity"])
             elif cmd["op"] == "pause":
-                self._paused()
+                yield from self._paused()
 
     def _paused(self):
-        """Hold until resume: rank 0 answers the commands that arrive meanwhile (the others are
-        announced in the next step), then releases the other peers."""
-        from nodes.zenoh_transport import PeerTimeout
+        """Generator: hold until resume; rank 0 answers the commands that arrive meanwhile (the
+        others are announced in the next step), then releases the other peers."""
         step = self.sim.step_index
         if self.halo.rank == 0:
             self._paused_at = step
@@ -183,13 +180,14 @@ class Controls:
                     else:
                         self._held.append(cmd)
                         self.endpoint.send_ack(entry["id"], "accepted", step + 1)
-                time.sleep(0.05)
+                if self._paused_at is not None:
+                    yield from self.endpoint.idle(0.05)
             for q in self.halo.others:
                 self.endpoint.send(q, (step, "resume"), {})
         else:
             while True:
                 try:
-                    self.endpoint.wait(0, (step, "resume"), _empty_check)
+                    yield from self.endpoint.recv(0, (step, "resume"), _empty_check)
                     break
                 except PeerTimeout:
                     continue  # paused as long as rank 0 says; a lost peer still raises PeerLost
@@ -202,149 +200,6 @@ class Controls:
         step = self.sim.step_index
         for entry in self.endpoint.take_commands():
             self._reject(entry, step, f"the run ended at step {step}")
-
-
-def run_peer(scene, rank: int, world: int, endpoint, out: Path | None, precision: str | None,
-             steps: int | None, until: float | None, progress: bool, startup_timeout: float = 120.0,
-             frames: bool = True, resume=None, checkpoint_every: int | None = None,
-             checkpoint_root: Path | None = None, backend: str = "cpu", device: int | None = None,
-             report=None, restarts: list | None = None) -> dict | None:
-    """Run peer ``rank`` of ``world`` to the end; rank 0 writes ``out`` and returns the summary.
-    With ``frames`` (and render.every > 0) the peer renders and publishes a framelet every
-    render.every steps while a viewer is subscribed. ``resume``: a loaded checkpoint (any number of
-    peers may have written it); checkpoints go to ``checkpoint_root`` every ``checkpoint_every``
-    steps (default output.checkpoint_every), one part per peer, committed by rank 0 when every part
-    was written (a part that fails, e.g. on a full disk, drops that checkpoint; the run goes on).
-    ``report(step)`` is called after every step (nodes/supervise.ProgressReport); ``restarts``: the
-    launcher's restart history, which rank 0 writes into summary.json."""
-    import numba
-
-    from launch.run import (advance, checkpoint_failed, checkpoint_record, make_summary, resolved_scene,
-                            write_outputs)
-    from nodes.frames import FrameMaker, domain_box
-    from nodes.viewer import frame_arrays
-    t_start = time.perf_counter()
-    from sphcore import checkpoint
-    # one GPU per peer: rank r takes GPU r modulo the GPUs visible, unless told otherwise
-    sim = Simulation(scene, precision, backend, rank if device is None else device)
-    if resume is not None:
-        checkpoint.restore(sim, resume)
-    dec = decomposition_for(scene, sim.grid, world, sim.state.x)
-    take_block(sim, dec, rank)
-    halo = PeerHalo(dec, rank, endpoint, scene.decomposition.balance_every,
-                    scene.decomposition.balance_by)
-    endpoint.at_step(sim.step_index)  # earlier steps are replays; steps far ahead are not from this run
-    endpoint.set_message_limit(message_limit(sim))
-    t_setup = time.perf_counter() - t_start
-    log.info("peer %d/%d: block %s of %s, %d of %d particles, %d numba threads", rank, world,
-             dec.block_of(rank), dec.dims, sim.state.n_owned, sim.n_particles, numba.get_num_threads())
-    endpoint.wait_for_peers(startup_timeout)
-    recorder = PeerRecorder(sim, endpoint)
-    maker = FrameMaker(scene, domain_box(scene), rank, world, sim.n_particles) if frames and scene.render.every else None
-    controls = Controls(sim, halo, endpoint, maker)
-    every = scene.output.checkpoint_every if checkpoint_every is None else checkpoint_every
-
-    saved = checkpoint_record(every)
-
-    def save():
-        # every peer sends rank 0 its part's entry, or {"error": ...} if the part could not be
-        # written; rank 0 commits only when every part is in (else the step is dropped, once logged)
-        step = sim.step_index
-        try:
-            part = checkpoint.write_part(checkpoint_root, step, rank, sim)
-        except checkpoint.CheckpointWriteError as e:
-            part = {"error": f"peer {rank}: {e}"}
-        if rank != 0:
-            endpoint.send(0, (step, "ckpt"), {"entry": np.frombuffer(json.dumps(part).encode(), dtype=np.uint8)})
-            return
-        parts = [part] + [json.loads(bytes(endpoint.wait(q, (step, "ckpt"), _entry_check)["entry"]).decode())
-                          for q in range(1, world)]
-        failed = [p["error"] for p in parts if "error" in p]
-        if not failed:
-            try:
-                checkpoint.commit(checkpoint_root, step, checkpoint.sim_info(sim), resolved_scene(scene, sim),
-                                  parts, scene.output.checkpoint_keep)
-            except checkpoint.CheckpointWriteError as e:
-                failed = [f"peer 0: {e}"]
-        if failed:
-            checkpoint.discard(checkpoint_root, step)
-            checkpoint_failed(saved, step, "; ".join(failed))
-        else:
-            saved["written"] += 1
-            saved["last"] = step
-
-    vtk = None
-    if scene.output.vtk_every:
-        from sphcore.vtk import VtkWriter
-        vtk = VtkWriter(checkpoint_root.parent, scene, rank, world)
-
-    def block_box():
-        lo, hi = halo.dec.cell_box(rank)
-        g = sim.grid
-        return g.origin + lo * g.cell.astype(np.float64), g.origin + hi * g.cell.astype(np.float64)
-
-    def on_step(seconds):
-        recorder(seconds)
-        controls.after_step()
-        if every and sim.step_index % every == 0:
-            save()
-        if report is not None:
-            report(sim.step_index)
-        if vtk is not None and vtk.due(sim):
-            vtk.write(sim, block_box())
-        if maker is not None and maker.due(sim) and endpoint.viewer_listening():
-            frame, stats, points = maker.make(sim, sum(endpoint.bytes_sent.values()))
-            with sim.timers("publish"):
-                endpoint.publish_frame(sim.step_index, "frame", frame_arrays(frame, stats, points))
-
-    loop = advance(sim, halo, scene, steps, until, progress and rank == 0, on_step=on_step)
-    controls.finish()
-    v = sim.refresh(halo)
-    s = sim.state
-    n = s.n_owned
-    stats = {
-        "rank": rank, "block": list(dec.block_of(rank)), "particles_final": n,
-        "particles": recorder.particles, "step_s": recorder.step_s, "wait_s": recorder.wait_s,
-        "stages": sim.timers.summary(), "loop": loop, "setup_s": t_setup,
-        "bytes_sent": dict(endpoint.bytes_sent), "array_bytes_sent": dict(halo.bytes_sent),
-        "wait_s_per_phase": dict(endpoint.wait_s),
-        "ghosts": int(s.n - n), "ghosts_received": halo.ghosts_received, "leaks": sim.leaks,
-        "kinetic_energy": sim.kinetic_energy(),
-        "neighbours_sum": int(sim.grid.counts[:n].sum()), "neighbours_max": int(sim.grid.counts[:n].max(initial=0)),
-        "neighbours_max_over_run": sim.max_neighbours, "rebalances": halo.rebalances,
-        "dropped_messages": endpoint.dropped, "dropped": endpoint.drops, "threads": numba.get_num_threads(),
-        "cuts": [list(c) for c in halo.dec.cuts], "controls": controls.applied,
-    }
-    final = {"id": s.id[:n], "x": s.x[:n], "v": np.ascontiguousarray(v[:n]), "rho": s.rho[:n],
-             "stats": np.frombuffer(json.dumps(stats).encode(), dtype=np.uint8)}
-    step = sim.step_index
-    if rank != 0:
-        endpoint.send(0, (step, "final"), final)
-        endpoint.wait(0, (step, "bye"), _empty_check)
-        return None
-    parts, peers = [final], [stats]
-    for q in range(1, world):
-        parts.append(endpoint.wait(q, (step, "final"), _final_check(sim, q, stats, parts, peers)))
-    peers[0].update(dropped_messages=endpoint.dropped, dropped=endpoint.drops)  # what came in while gathering too
-    arrays = merge_by_id(parts, ("id", "x", "v", "rho"))
-    if len(arrays["id"]) != sim.n_particles or np.any(np.diff(arrays["id"]) <= 0):
-        raise RuntimeError(f"gathered {len(arrays['id'])} particles with "
-                           f"{len(arrays['id']) - len(np.unique(arrays['id']))} duplicates; the scene has "
-                           f"{sim.n_particles}")
-    summary = make_summary(sim, scene, loop, t_setup, time.perf_counter() - t_start)
-    summary.update(peer_summary(peers, summary, world, sim.dtype.itemsize))
-    if every:
-        summary["checkpoints"] = saved
-    if restarts is not None:
-        summary["restarts"] = restarts
-    if out is not None:
-        write_outputs(out, resolved_scene(scene, sim), arrays, summary)
-    for q in range(1, world):
-        endpoint.send(q, (step, "bye"), {})
-    endpoint.wait_until_alone()
-    if maker is not None:
-        endpoint.publish_frame(step, "end", {}, reliable=True)  # the viewer flushes and stops
-    return summary
 
 
 HEADROOM = 1 << 20            # bytes: headers, control commands, checkpoint entries, a peer's statistics
@@ -405,7 +260,6 @@ def _final_check(sim: Simulation, q: int, own: dict, parts: list, peers: list):
     """Rank 0's check of peer ``q``'s final message: its owned particles (id, x, v, rho in the run's
     dtype, finite, ids of this scene that no other peer reported) and statistics with the same
     fields and number of steps as rank 0's. The accepted one's statistics are appended to ``peers``."""
-    from sphcore.halo import expect_arrays
 
     def check(msg):
         what = f"final from peer {q}"

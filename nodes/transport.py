@@ -1,21 +1,17 @@
 """Transports that move a peer's halo messages (dicts of numpy arrays) to another peer, and the
 mailbox every receiver files them in.
 
-Interface used by ``sphcore.halo.PeerHalo`` (one endpoint per peer; ``sphcore.halo.Transport``):
+Every endpoint implements ``nodes.endpoint.Endpoint`` (the halo's part of it is
+``sphcore.halo.Transport``: ``send``, ``recv``, ``drops``). ``check(arrays)`` is the receiver's
+idea of what ``source`` must send under ``tag``; it raises ``sphcore.halo.Reject`` for anything
+else. A rejected message is dropped and counted, and the receiver goes on waiting: a hostile
+message that arrives first cannot stand in for, or block, the genuine one behind it.
 
-    send(dest: int, tag: tuple, arrays: dict[str, np.ndarray]) -> None
-    recv(source: int, tag: tuple, check=None) -> generator; yields while waiting, returns the arrays
-    drops -> {source: {reason: count}}        messages dropped, never used
-
-``check(arrays)`` is the receiver's idea of what ``source`` must send under ``tag``; it raises
-``sphcore.halo.Reject`` for anything else. A rejected message is dropped and counted, and the
-receiver goes on waiting: a hostile message that arrives first cannot stand in for, or block, the
-genuine one behind it.
-
-``InProcessNetwork`` connects the peers of one process (tests, and checking that N peers give the
-same bits as one); ``nodes.zenoh_transport.ZenohEndpoint`` carries them between processes and files
-what arrives in a ``Mailbox``: bounded (per source, per key, in bytes), inside a window of steps
-around the receiver's own, with duplicates dropped.
+``InProcessNetwork`` connects the peers of one process (tests, the in-process cluster, a
+single-process run, and checking that N peers give the same bits as one); its endpoints' ``recv``
+yields while it waits. ``nodes.zenoh_transport.ZenohEndpoint`` carries them between processes and
+files what arrives in a ``Mailbox``: bounded (per source, per key, in bytes), inside a window of
+steps around the receiver's own, with duplicates dropped.
 """
 from __future__ import annotations
 
@@ -171,6 +167,7 @@ class InProcessNetwork:
     def __init__(self):
         self._mail = {}    # (dest, source, tag) -> [arrays, ...]
         self._sent = set()  # keys sent by the endpoint itself and not yet received
+        self.sends = 0      # messages sent so far (a scheduler's round without one is a deadlock)
 
     def endpoint(self, rank: int) -> "InProcessEndpoint":
         return InProcessEndpoint(self, rank)
@@ -196,17 +193,32 @@ class CountsDrops:
 
 
 class InProcessEndpoint(CountsDrops):
+    """Peer ``rank`` on an ``InProcessNetwork`` (``nodes.endpoint.Endpoint``). It never blocks:
+    ``recv`` and ``idle`` yield, and a scheduler (nodes/cluster.py) resumes the peers in turn.
+    Control commands are whatever a test puts in ``commands``; acknowledgements and published
+    frames are kept in ``acks`` and ``frames``."""
+
     def __init__(self, network: InProcessNetwork, rank: int):
         self.network = network
         self.rank = rank
         self._drops = DropLog(f"peer {rank}")
+        self.bytes_sent = {}      # phase -> array bytes sent (no headers in memory)
+        self.wait_s = {}          # never blocks, so never waits
+        self.commands = []        # rank 0: {"id", "text"} for take_commands
+        self.acks = []            # (command_id, result, step, reason) from send_ack
+        self.frames = []          # (step, phase) from publish_frame
 
     def send(self, dest: int, tag: tuple, arrays: dict):
         key = (dest, self.rank, tag)
         if key in self.network._sent:
             raise RuntimeError(f"peer {self.rank}: message {tag} for peer {dest} sent twice")
         self.network._sent.add(key)
+        self.network.sends += 1
         self.network._mail.setdefault(key, []).append({k: v.copy() for k, v in arrays.items()})
+        self._count(tag[1], arrays)
+
+    def _count(self, phase: str, arrays: dict):
+        self.bytes_sent[phase] = self.bytes_sent.get(phase, 0) + sum(int(a.nbytes) for a in arrays.values())
 
     def recv(self, source: int, tag: tuple, check=None):
         """Generator: yields until a message ``tag`` from ``source`` to this peer has arrived that
@@ -229,3 +241,40 @@ class InProcessEndpoint(CountsDrops):
                 return arrays
             yield key
 
+    # -- the rest of nodes.endpoint.Endpoint: peers of one process trust each other and never block
+    def at_step(self, step: int):
+        """No step window in memory."""
+
+    def set_message_limit(self, limit):
+        """No size limit in memory."""
+
+    def wait_for_peers(self, timeout: float | None = None):
+        """Every peer of the network can receive from the start."""
+
+    def check(self):
+        """A peer of this process cannot be lost."""
+
+    def idle(self, seconds: float):
+        """Generator: yields once (the scheduler resumes the other peers meanwhile)."""
+        yield ("idle", self.rank)
+
+    def take_commands(self) -> list:
+        out, self.commands = self.commands, []
+        return out
+
+    def send_ack(self, command_id: str, result: str, step: int, reason: str = ""):
+        self.acks.append((command_id, result, step, reason))
+
+    def viewer_listening(self) -> bool:
+        """No viewer in memory: a single-process run hands its frames to its own Viewer."""
+        return False
+
+    def publish_frame(self, step: int, phase: str, arrays: dict, reliable: bool = False):
+        self.frames.append((step, phase))
+        self._count("frames", arrays)
+
+    def wait_until_alone(self, timeout: float = 10.0):
+        """Nothing is on its way in memory once it is sent."""
+
+    def close(self):
+        """Nothing to free."""

@@ -30,10 +30,12 @@ from pathlib import Path
 import numpy as np
 
 from nodes import wire
+from nodes.rerun_sinks import sinks_for
+from nodes.zenoh_transport import zenoh_config
+from sphcore.output import write_summary
 from sphcore.render import RANK_COLOURS, Framelet, SceneRenderer
 
 log = logging.getLogger("sph.viewer")
-VIEWER = -1  # the viewer's address in message headers ("dest")
 
 
 def open_recording(run_id: str, record: Path | None = None, spawn: bool = False, serve_web: bool = False,
@@ -43,7 +45,6 @@ def open_recording(run_id: str, record: Path | None = None, spawn: bool = False,
     (RERUN_ANALYTICS=0 is set by the launcher; ``rerun analytics disable`` makes it permanent)."""
     import rerun as rr
 
-    from nodes.rerun_sinks import sinks_for
     rec = rr.RecordingStream("sphfluid", recording_id=run_id)
     sinks = sinks_for(record, spawn, serve_web, connect, grpc_port, web_port,
                       announce=lambda text: print(text, flush=True))
@@ -190,13 +191,12 @@ def run_viewer(scene, run_id: str, listen: list[str], connect: list[str], rec, b
     ``trust``: the viewer's credentials (nodes/security.py), None for an --insecure run."""
     import zenoh
 
-    from nodes.zenoh_transport import zenoh_config
     done = threading.Event()
     state = {"viewer": None, "last": time.perf_counter()}
 
     def on_frame(sample):
         try:
-            source, (step, phase), arrays = wire.decode(sample.payload.to_bytes(), run_id, VIEWER, 1 << 20)
+            source, (step, phase), arrays = wire.decode(sample.payload.to_bytes(), run_id, wire.VIEWER, 1 << 20)
             if phase == "end":
                 done.set()
                 return
@@ -230,7 +230,6 @@ def run_viewer(scene, run_id: str, listen: list[str], connect: list[str], rec, b
         rec.flush()
     v = state["viewer"]
     if stats_path is not None and v is not None:
-        from sphcore.output import write_summary
         write_summary(stats_path, {"frames": v.frames, "incomplete_frames": v.incomplete,
                                    "composite_latency_ms": {"median": float(np.median(v.latency_ms)),
                                                             "max": float(np.max(v.latency_ms))},

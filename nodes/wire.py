@@ -4,7 +4,7 @@ Key expressions (every one under ``sph/<run>/``, so two runs on one network neve
 
     sph/<run>/halo/<dest>/<source>     halo messages from peer <source> to peer <dest>
     sph/<run>/alive/<rank>             liveliness token of peer <rank> (gone = the peer died)
-    sph/<run>/frame/<rank>             framelets (and rank 0's "end") from peer <rank> to any viewer
+    sph/<run>/frame/<rank>             framelets (and rank 0's "end") from peer <rank> to any viewer (dest -1)
     sph/<run>/control                  commands from a controller (source -2) to rank 0 (nodes/control.py)
     sph/<run>/ack                      rank 0's answer to each command: accepted at step N, or rejected
 
@@ -99,6 +99,7 @@ def frame_all(run: str) -> str:
 
 
 CONTROLLER = -2  # the source rank of control commands, and the destination of their acks
+VIEWER = -1      # the destination of framelets and of rank 0's "end" (nodes/viewer.py)
 
 
 def control_key(run: str) -> str:

@@ -1,4 +1,4 @@
-"""A peer's endpoint on Zenoh, with the interface of ``nodes.transport`` (send / recv).
+"""A peer's endpoint on Zenoh: ``nodes.endpoint.Endpoint`` between processes.
 
 Each peer opens one Zenoh session in peer mode: multicast scouting off, listening on its own
 endpoint and connecting explicitly to the others' (a full mesh, no router needed). It subscribes
@@ -30,24 +30,15 @@ import re
 import threading
 import time
 
-from nodes import wire
+from nodes import control, security, wire
+from nodes.endpoint import PeerLost, PeerTimeout, TransportError
 from nodes.transport import STEP_WINDOW, CountsDrops, DropLog, Mailbox
 from sphcore.halo import Reject
 
 log = logging.getLogger("sph.zenoh")
 
 
-class TransportError(RuntimeError):
-    pass
-
-
-class PeerLost(TransportError):
-    pass
-
-
-class PeerTimeout(TransportError):
-    pass
-
+__all__ = ["PeerLost", "PeerTimeout", "TransportError", "ZenohEndpoint", "zenoh_config"]
 
 LEASE_MS = 5000
 NOT_ANSWERING_S = 2.0   # a connected peer silent this long (while we wait for it) is reported
@@ -73,7 +64,6 @@ def zenoh_config(listen: list[str], connect: list[str], lease_ms: int = LEASE_MS
     conf.insert_json5("transport/link/tx/lease", str(int(lease_ms)))
     conf.insert_json5("transport/link/tx/keep_alive", "4")
     if trust is not None:
-        from nodes import security
         security.apply(conf, trust)
     return conf
 
@@ -145,7 +135,6 @@ class ZenohEndpoint(CountsDrops):
     def _on_control(self, sample):
         """A command on the controller's key (with access control, only the controller's identity may
         publish there): queued for rank 0's step loop, which validates and acknowledges it."""
-        from nodes import control
         try:
             _, (_, phase), arrays = wire.decode(sample.payload.to_bytes(), self.run, 0, self.world,
                                                 sources=(wire.CONTROLLER,), max_bytes=control.MAX_MESSAGE)
@@ -172,7 +161,6 @@ class ZenohEndpoint(CountsDrops):
     def send_ack(self, command_id: str, result: str, step: int, reason: str = ""):
         """Rank 0: answer the controller of command ``command_id`` on ``wire.ack_key``: "accepted"
         (applied after step ``step`` on every peer) or "rejected" with ``reason``."""
-        from nodes import control
         payload = wire.encode(self.run, max(int(step), -1), "ack", self.rank, wire.CONTROLLER,
                               control.ack_arrays(command_id, result, reason))
         self.session.put(wire.ack_key(self.run), payload, congestion_control=self._zenoh.CongestionControl.BLOCK)
@@ -240,8 +228,7 @@ class ZenohEndpoint(CountsDrops):
     def publish_frame(self, step: int, phase: str, arrays: dict, reliable: bool = False):
         """Publish to any viewer: framelets are dropped rather than wait when the link is congested
         (peers never wait for a viewer); the end-of-run notice is reliable."""
-        from nodes.viewer import VIEWER
-        payload = wire.encode(self.run, step, phase, self.rank, VIEWER, arrays)
+        payload = wire.encode(self.run, step, phase, self.rank, wire.VIEWER, arrays)
         if reliable:
             self.session.put(wire.frame_key(self.run, self.rank), payload,
                              congestion_control=self._zenoh.CongestionControl.BLOCK)
@@ -323,6 +310,12 @@ class ZenohEndpoint(CountsDrops):
         """Raise PeerLost if a peer of the run has gone (called between steps)."""
         with self._cv:
             self._check_lost(-1, "between steps")
+
+    def idle(self, seconds: float):
+        """Generator with the in-process interface; it sleeps instead of yielding."""
+        time.sleep(seconds)
+        return
+        yield  # pragma: no cover
 
     def wait_for_peers(self, timeout: float | None = None):
         """Block until every peer of the run has declared its token (so its inbox is subscribed)."""

@@ -1,0 +1,457 @@
+"""The one run driver: a peer stepped to the end of the run, with its outputs, checkpoints and
+control commands, over any ``nodes.endpoint.Endpoint``.
+
+    drive(peer, plan, frames)    generator; yields only while its endpoint waits (in-process)
+
+The same loop runs everywhere, with different endpoints:
+
+    one process (launch/run.py)        peer 0 of 1, NULL_HALO, an in-process endpoint; its frames go
+                                       to its own Viewer
+    in-process cluster (cluster.py)    N peers on an InProcessNetwork, resumed in turn
+    a peer process (``run_peer``)      one peer on a ZenohEndpoint, which blocks instead of yielding
+                                       (``run_blocking``); frames are published to any viewer
+
+After the last step every peer sends rank 0 its owned particles and statistics ("final"), rank 0
+writes the contract outputs (``write_outputs``: summary.json, final.npz, scene.toml) and says "bye".
+``advance`` is the stepping loop itself (first step timed apart, progress); ``make_summary``,
+``checkpoint_record`` and ``resolved_scene`` are the parts of the outputs every run shares.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import platform
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Protocol
+
+import numba
+import numpy as np
+
+from nodes.endpoint import Endpoint
+from nodes.frames import FrameMaker, domain_box
+from nodes.peer import (Controls, PeerRecorder, _empty_check, _entry_check, _final_check, decomposition_for,
+                        message_limit, peer_summary, take_block)
+from nodes.viewer import frame_arrays
+from sphcore import __version__, checkpoint
+from sphcore.halo import PeerHalo
+from sphcore.output import write_final, write_scene, write_summary
+from sphcore.scene import Scene
+from sphcore.solver import Simulation
+from sphcore.state import merge_by_id
+
+log = logging.getLogger("sph.run")
+peer_log = logging.getLogger("sph.peer")
+
+
+@dataclass(frozen=True)
+class RunPlan:
+    """What a run does besides stepping: how far it goes and what it writes and reports."""
+
+    steps: int | None = None              # run to this step (a resumed run counts from its checkpoint)
+    until: float | None = None            # ... or to this simulated time; neither: the scene's time.steps
+    out: Path | None = None               # where rank 0 writes the contract outputs (None: nowhere)
+    checkpoint_every: int | None = None   # steps between checkpoints (None: output.checkpoint_every)
+    checkpoint_root: Path | None = None   # checkpoints (and VTK pieces: its parent); None: out/checkpoints
+    progress: bool = True                 # rank 0 shows a progress bar or log lines
+    report: Callable[[int], None] | None = None  # called with the step number after every step
+    restarts: list | None = None          # the launcher's restart history, for summary.json
+
+
+@dataclass
+class PeerRun:
+    """One peer of a run, set up and ready to step. ``dec`` None: a single process (NULL_HALO, no
+    control channel, nothing to gather, the single-process summary)."""
+
+    sim: Simulation
+    scene: Scene
+    halo: object                          # NULL_HALO or a PeerHalo over ``endpoint``
+    endpoint: Endpoint
+    rank: int = 0
+    world: int = 1
+    dec: object = None                    # the starting Decomposition (None: one process)
+    t_start: float = 0.0                  # perf_counter() when set-up began
+    t_setup: float = 0.0                  # seconds of set-up
+
+
+class FrameSink(Protocol):
+    """Where a run's frames go: its own Viewer (one process) or the endpoint (peers)."""
+
+    maker: FrameMaker                     # renders this peer's framelet (control commands change it)
+
+    def show(self, sim: Simulation) -> None:
+        """After each step: render and hand on a frame if one is due."""
+
+    def close(self) -> None:
+        """After the stepping loop, also when it failed: flush what is pending."""
+
+    def summary(self) -> dict | None:
+        """summary.json's "viewer", or None for none."""
+
+    def end(self, step: int) -> None:
+        """After the outputs are written: tell any viewer the run is over."""
+
+
+class PublishFrames:
+    """A peer's frames: published to any viewer on the endpoint, rendered only while one listens."""
+
+    def __init__(self, maker: FrameMaker, endpoint: Endpoint):
+        self.maker, self.endpoint = maker, endpoint
+
+    def show(self, sim: Simulation):
+        if self.maker.due(sim) and self.endpoint.viewer_listening():
+            frame, stats, points = self.maker.make(sim, sum(self.endpoint.bytes_sent.values()))
+            with sim.timers("publish"):
+                self.endpoint.publish_frame(sim.step_index, "frame", frame_arrays(frame, stats, points))
+
+    def close(self):
+        pass
+
+    def summary(self):
+        return None
+
+    def end(self, step: int):
+        self.endpoint.publish_frame(step, "end", {}, reliable=True)  # the viewer flushes and stops
+
+
+class Progress:
+    """A progress bar on a terminal (tqdm), a quiet log line every so often otherwise."""
+
+    def __init__(self, total: float, unit: str, log_every: int, enabled: bool = True):
+        self.total = total
+        self.unit = unit
+        self.bar = None
+        self.log_every = log_every  # steps between log lines; 0 = every 5 % of the run
+        self.next_mark = 0.05
+        self.enabled = enabled
+        if enabled and sys.stderr.isatty():
+            from tqdm import tqdm
+            self.bar = tqdm(total=total, unit=unit, dynamic_ncols=True, leave=True,
+                            bar_format="{l_bar}{bar}| {n:.4g}/{total:.4g} {unit} [{elapsed}<{remaining}{postfix}]")
+
+    def update(self, done: float, step: int, sim: Simulation, rate: float):
+        if not self.enabled:
+            return
+        info = f"step {step}  t={sim.t:.4g}s  dt={sim.dt:.3g} ({sim.last_limit})  {rate:.3g} particle-steps/s"
+        if self.bar is not None:
+            # update() redraws at most every tqdm.mininterval (0.1 s), so small scenes are not slowed
+            self.bar.set_postfix_str(f"t={sim.t:.4g}s dt={sim.dt:.2g} ({sim.last_limit}) {rate:.2g} p-steps/s",
+                                     refresh=False)
+            self.bar.update(min(done, self.total) - self.bar.n)
+        else:
+            fraction = min(done / self.total, 1.0) if self.total else 1.0
+            due = (step % self.log_every == 0) if self.log_every else fraction >= self.next_mark
+            if due or fraction >= 1.0:
+                self.next_mark = (int(fraction * 20) + 1) / 20.0
+                log.info("%s  (%.0f%%)", info, 100.0 * fraction)
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
+
+
+def run_blocking(gen):
+    """The value of a driver generator whose endpoint blocks instead of yielding (a single process,
+    a Zenoh peer)."""
+    try:
+        next(gen)
+    except StopIteration as done:
+        return done.value
+    gen.close()
+    raise RuntimeError("the run yielded: its endpoint does not block (drive in-process peers with nodes.cluster)")
+
+
+def advance(sim: Simulation, halo, scene: Scene, steps: int | None, until: float | None, progress: bool,
+            on_step=None):
+    """Generator: step ``sim`` (over ``halo``) for ``steps`` steps or until simulated time ``until``
+    (else the scene's time.steps; a resumed run counts from its checkpoint's step); ``on_step(seconds)``
+    (a generator function) runs after each step (seconds None for the first, untimed one). Returns
+    the loop timings: the first step (numba compilation or cache load) is timed apart from the loop,
+    so that particle-steps/s measures stepping only."""
+    target_steps = steps if steps is not None else (None if until is not None else scene.time.steps)
+
+    def cap():
+        return (until - sim.t) if until is not None else None
+
+    t0 = time.perf_counter()
+    if target_steps != 0 and (until is None or sim.t < until) and (target_steps is None
+                                                                    or sim.step_index < target_steps):
+        yield from sim.stages(halo, cap())
+        if on_step is not None:
+            yield from on_step(None)  # not timed: this step compiled the kernels
+    t_first = time.perf_counter() - t0
+    sim.timers.reset()
+    steps_in_loop = 0
+    total = target_steps if target_steps is not None else until
+    bar = Progress(total, "steps" if target_steps is not None else "s", scene.run.log_every, enabled=progress)
+    t_loop = time.perf_counter()
+    try:
+        while True:
+            if target_steps is not None and sim.step_index >= target_steps:
+                break
+            if until is not None and sim.t >= until * (1 - 1e-12):
+                break
+            t_step = time.perf_counter()
+            yield from sim.stages(halo, cap())
+            now = time.perf_counter()
+            if on_step is not None:
+                yield from on_step(now - t_step)
+            steps_in_loop += 1
+            rate = sim.n_particles * steps_in_loop / (now - t_loop)
+            bar.update(sim.step_index if target_steps is not None else sim.t, sim.step_index, sim, rate)
+    finally:
+        bar.close()
+    return {"steps": steps_in_loop, "wall_s": time.perf_counter() - t_loop, "first_step_s": t_first}
+
+
+def drive(peer: PeerRun, plan: RunPlan, frames: FrameSink | None = None):
+    """Generator: run ``peer`` to the end of ``plan``; rank 0 writes the outputs and returns the
+    summary (the others return None). Checkpoints: every peer writes its part and sends rank 0 its
+    entry, rank 0 commits when every part was written (a part that fails, e.g. on a full disk, drops
+    that checkpoint; the run goes on)."""
+    sim, scene, halo, endpoint, rank, world = peer.sim, peer.scene, peer.halo, peer.endpoint, peer.rank, peer.world
+    single = peer.dec is None
+    recorder = None if single else PeerRecorder(sim, endpoint)
+    controls = None if single else Controls(sim, halo, endpoint, frames.maker if frames is not None else None)
+    every = scene.output.checkpoint_every if plan.checkpoint_every is None else plan.checkpoint_every
+    root = plan.checkpoint_root if plan.checkpoint_root is not None else (
+        plan.out / "checkpoints" if plan.out is not None else None)
+    saved = Checkpoints(peer, root, every)
+    vtk = None
+    if scene.output.vtk_every:
+        from sphcore.vtk import VtkWriter  # VTK is loaded only by runs that write it
+        vtk = VtkWriter(root.parent, scene, rank, world)
+
+    def block_box():
+        if single:
+            return None
+        lo, hi = halo.dec.cell_box(rank)
+        g = sim.grid
+        return g.origin + lo * g.cell.astype(np.float64), g.origin + hi * g.cell.astype(np.float64)
+
+    def on_step(seconds):
+        if recorder is not None:
+            recorder(seconds)
+        if controls is not None:
+            yield from controls.after_step()
+        if every and sim.step_index % every == 0:
+            yield from saved.save()
+        if plan.report is not None:
+            plan.report(sim.step_index)
+        if vtk is not None and vtk.due(sim):
+            vtk.write(sim, block_box())
+        if frames is not None:
+            frames.show(sim)
+
+    try:
+        loop = yield from advance(sim, halo, scene, plan.steps, plan.until, plan.progress and rank == 0,
+                                  on_step=on_step)
+    finally:
+        if frames is not None:
+            frames.close()
+    if single:
+        arrays = sim.final_arrays()
+        summary = make_summary(sim, scene, loop, peer.t_setup, time.perf_counter() - peer.t_start)
+    else:
+        controls.finish()
+        gathered = yield from _gather(peer, recorder, controls, loop)
+        if gathered is None:  # not rank 0: rank 0 has written the outputs and said "bye"
+            return None
+        arrays, peers = gathered
+        summary = make_summary(sim, scene, loop, peer.t_setup, time.perf_counter() - peer.t_start)
+        summary.update(peer_summary(peers, summary, world, sim.dtype.itemsize))
+    step = sim.step_index
+    if every:
+        summary["checkpoints"] = saved.record
+    if plan.restarts is not None:
+        summary["restarts"] = plan.restarts
+    shown = frames.summary() if frames is not None else None
+    if shown is not None:
+        summary["viewer"] = shown
+    if plan.out is not None:
+        write_outputs(plan.out, resolved_scene(scene, sim), arrays, summary)
+    for q in range(1, world):
+        endpoint.send(q, (step, "bye"), {})
+    endpoint.wait_until_alone()
+    if frames is not None:
+        frames.end(step)
+    return summary
+
+
+class Checkpoints:
+    """A run's checkpoints: every peer writes its part of the step and sends rank 0 its entry (or
+    the error that kept it from writing it); rank 0 commits when every part was written, else drops
+    the step (one warning, counted in ``record``: summary.json's "checkpoints")."""
+
+    def __init__(self, peer: PeerRun, root: Path | None, every: int):
+        self.peer, self.root = peer, root
+        self.record = checkpoint_record(every)
+
+    def save(self):
+        """Generator: checkpoint the peer's current step."""
+        sim, scene, endpoint, rank = self.peer.sim, self.peer.scene, self.peer.endpoint, self.peer.rank
+        step = sim.step_index
+        who = "" if self.peer.dec is None else f"peer {rank}: "  # one process: the error alone
+        try:
+            part = checkpoint.write_part(self.root, step, rank, sim)
+        except checkpoint.CheckpointWriteError as e:
+            part = {"error": f"{who}{e}"}
+        if rank != 0:
+            endpoint.send(0, (step, "ckpt"), {"entry": np.frombuffer(json.dumps(part).encode(), dtype=np.uint8)})
+            return
+        parts = [part]
+        for q in range(1, self.peer.world):
+            msg = yield from endpoint.recv(q, (step, "ckpt"), _entry_check)
+            parts.append(json.loads(bytes(msg["entry"]).decode()))
+        failed = [p["error"] for p in parts if "error" in p]
+        if not failed:
+            try:
+                checkpoint.commit(self.root, step, checkpoint.sim_info(sim), resolved_scene(scene, sim), parts,
+                                  scene.output.checkpoint_keep)
+            except checkpoint.CheckpointWriteError as e:
+                failed = [f"{who}{e}"]
+        if failed:
+            checkpoint.discard(self.root, step)
+            checkpoint_failed(self.record, step, "; ".join(failed))
+        else:
+            self.record["written"] += 1
+            self.record["last"] = step
+
+
+def _gather(peer: PeerRun, recorder: PeerRecorder, controls: Controls, loop: dict):
+    """Generator: every rank sends rank 0 its owned particles and statistics; rank 0 returns them
+    merged by id and every peer's statistics, the others None once rank 0 has said "bye"."""
+    sim, halo, endpoint, rank, world = peer.sim, peer.halo, peer.endpoint, peer.rank, peer.world
+    yield from sim.refresh_stages(halo)
+    v = sim.synchronised_velocity()
+    s = sim.state
+    n = s.n_owned
+    stats = {
+        "rank": rank, "block": list(peer.dec.block_of(rank)), "particles_final": n,
+        "particles": recorder.particles, "step_s": recorder.step_s, "wait_s": recorder.wait_s,
+        "stages": sim.timers.summary(), "loop": loop, "setup_s": peer.t_setup,
+        "bytes_sent": dict(endpoint.bytes_sent), "array_bytes_sent": dict(halo.bytes_sent),
+        "wait_s_per_phase": dict(endpoint.wait_s),
+        "ghosts": int(s.n - n), "ghosts_received": halo.ghosts_received, "leaks": sim.leaks,
+        "kinetic_energy": sim.kinetic_energy(),
+        "neighbours_sum": int(sim.grid.counts[:n].sum()), "neighbours_max": int(sim.grid.counts[:n].max(initial=0)),
+        "neighbours_max_over_run": sim.max_neighbours, "rebalances": halo.rebalances,
+        "dropped_messages": endpoint.dropped, "dropped": endpoint.drops, "threads": numba.get_num_threads(),
+        "cuts": [list(c) for c in halo.dec.cuts], "controls": controls.applied,
+    }
+    final = {"id": s.id[:n], "x": s.x[:n], "v": np.ascontiguousarray(v[:n]), "rho": s.rho[:n],
+             "stats": np.frombuffer(json.dumps(stats).encode(), dtype=np.uint8)}
+    step = sim.step_index
+    if rank != 0:
+        endpoint.send(0, (step, "final"), final)
+        yield from endpoint.recv(0, (step, "bye"), _empty_check)
+        return None
+    parts, peers = [final], [stats]
+    for q in range(1, world):
+        parts.append((yield from endpoint.recv(q, (step, "final"), _final_check(sim, q, stats, parts, peers))))
+    peers[0].update(dropped_messages=endpoint.dropped, dropped=endpoint.drops)  # what came in while gathering too
+    arrays = merge_by_id(parts, ("id", "x", "v", "rho"))
+    if len(arrays["id"]) != sim.n_particles or np.any(np.diff(arrays["id"]) <= 0):
+        raise RuntimeError(f"gathered {len(arrays['id'])} particles with "
+                           f"{len(arrays['id']) - len(np.unique(arrays['id']))} duplicates; the scene has "
+                           f"{sim.n_particles}")
+    return arrays, peers
+
+
+def run_peer(scene: Scene, rank: int, world: int, endpoint: Endpoint, plan: RunPlan, precision: str | None = None,
+             backend: str = "cpu", device: int | None = None, resume=None, frames: bool = True,
+             startup_timeout: float = 120.0) -> dict | None:
+    """Run peer ``rank`` of ``world`` over ``endpoint`` (a ZenohEndpoint: it blocks) to the end of
+    ``plan``; rank 0 writes ``plan.out`` and returns the summary. With ``frames`` (and render.every
+    > 0) the peer renders and publishes a framelet every render.every steps while a viewer is
+    subscribed. ``resume``: a loaded checkpoint (any number of peers may have written it). One GPU
+    per peer: rank r takes GPU r modulo the GPUs visible, unless ``device`` says otherwise."""
+    t_start = time.perf_counter()
+    sim = Simulation(scene, precision, backend, rank if device is None else device)
+    if resume is not None:
+        checkpoint.restore(sim, resume)
+    dec = decomposition_for(scene, sim.grid, world, sim.state.x)
+    take_block(sim, dec, rank)
+    halo = PeerHalo(dec, rank, endpoint, scene.decomposition.balance_every, scene.decomposition.balance_by)
+    endpoint.at_step(sim.step_index)  # earlier steps are replays; steps far ahead are not from this run
+    endpoint.set_message_limit(message_limit(sim))
+    t_setup = time.perf_counter() - t_start
+    peer_log.info("peer %d/%d: block %s of %s, %d of %d particles, %d numba threads", rank, world,
+                  dec.block_of(rank), dec.dims, sim.state.n_owned, sim.n_particles, numba.get_num_threads())
+    endpoint.wait_for_peers(startup_timeout)
+    sink = None
+    if frames and scene.render.every:
+        sink = PublishFrames(FrameMaker(scene, domain_box(scene), rank, world, sim.n_particles), endpoint)
+    peer = PeerRun(sim, scene, halo, endpoint, rank, world, dec, t_start, t_setup)
+    return run_blocking(drive(peer, plan, sink))
+
+
+def checkpoint_record(every: int) -> dict:
+    """summary.json's "checkpoints": how many were written and failed, the newest good step."""
+    return {"every": every, "written": 0, "failed": 0, "last": None, "failures": []}
+
+
+def checkpoint_failed(record: dict, step: int, error: str):
+    """A checkpoint that could not be written: one warning, counted; the run goes on."""
+    record["failed"] += 1
+    record["failures"].append({"step": step, "error": error})
+    last = f"step {record['last']}" if record["last"] is not None else "none yet"
+    log.warning("%s; not kept, the run goes on (last good checkpoint: %s)", error, last)
+
+
+def resolved_scene(scene: Scene, sim) -> dict:
+    """The scene as it ran: every key resolved, --precision included, run-time changes included."""
+    resolved = sim.scene.to_dict()
+    resolved["run"]["precision"] = sim.precision
+    return resolved
+
+
+def write_outputs(out: Path, resolved: dict, final: dict, summary: dict):
+    """summary.json, final.npz and scene.toml (``resolved``: resolved_scene(scene, sim))."""
+    out.mkdir(parents=True, exist_ok=True)
+    write_scene(out / "scene.toml", resolved)
+    write_final(out / "final.npz", final)
+    write_summary(out / "summary.json", summary)
+
+
+def make_summary(sim: Simulation, scene: Scene, loop: dict, t_setup: float, wall_total: float) -> dict:
+    """The summary.json every run writes (a multi-peer run adds ``nodes.peer.peer_summary``)."""
+    stages = sim.timers.summary()
+    counts = sim.grid.counts[: sim.state.n_owned]
+    limits = {k: v for k, v in sim.limit_counts.items() if v}
+    return {
+        "scene": scene.scene.name,
+        "source": scene.source,
+        "version": __version__,
+        "particles": sim.n_particles,
+        "steps": sim.step_index,
+        "sim_time": sim.t,
+        "wall_s": wall_total,
+        "peers": 1,
+        "backend": sim.backend,
+        "device": sim.device_name,
+        "precision": sim.precision,
+        "threads": numba.get_num_threads() if sim.backend == "cpu" else None,
+        "dim": scene.dim,
+        "particle_steps_per_s": (sim.n_particles * loop["steps"] / loop["wall_s"]) if loop["wall_s"] > 0 else None,
+        "loop": {"steps": loop["steps"], "wall_s": loop["wall_s"],
+                 "note": "stepping loop only: excludes set-up and the first (compiling) step"},
+        "startup": {"setup_s": t_setup, "first_step_s": loop["first_step_s"],
+                    "note": "first_step_s includes numba compilation, or loading it from the on-disk cache"},
+        "stages": stages,
+        "dt": {"last": sim.dt, "binding_limit_steps": limits},
+        "solver": {"name": scene.sph.solver, **({
+            name: {"mean_iterations": st["iterations"] / max(st["steps"], 1), "max_iterations": st["max"],
+                   "unconverged_steps": st["unconverged"], "last_mean_error": st["last_error"]}
+            for name, st in sim.solver_stats.items()} if sim.dfsph else {})},
+        "neighbours": {"mean": float(counts.mean()) if counts.size else 0.0,
+                       "max": int(counts.max()) if counts.size else 0, "max_over_run": sim.max_neighbours},
+        "leaks": sim.leaks,
+        "max_compression": sim.max_compression,
+        "kinetic_energy": sim.kinetic_energy(),
+        "bytes_sent": 0,
+        "machine": {"python": platform.python_version(), "platform": platform.platform(),
+                    "numba": numba.__version__, "numpy": np.__version__},
+    }
