@@ -6,18 +6,14 @@ gather, neighbour lists) on the benchmark's 3D dam break, after two steps.
 Prints the mean of 5 calls of each part, in ms, and of the whole ``Grid.bin``.
 """
 import argparse
-import sys
 import time
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+import numba
 
-import numba  # noqa: E402
-
-from launch.bench import DEFAULT_SCENE, _fixed, spacing_for  # noqa: E402
-from sphcore import grid as G  # noqa: E402
-from sphcore.scene import load_scene  # noqa: E402
-from sphcore.solver import Simulation  # noqa: E402
+from launch.bench import DEFAULT_SCENE, _fixed, spacing_for
+from sphcore import grid as G
+from sphcore.scene import load_scene
+from sphcore.solver import Simulation
 
 
 def main():

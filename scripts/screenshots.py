@@ -20,9 +20,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
 from nodes.recording import images  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def run(tmp: Path, colour: str, args) -> Path:

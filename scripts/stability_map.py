@@ -5,15 +5,14 @@ docs/ACCURACY.md shows them.
 
     .venv/bin/python scripts/stability_map.py          # about a minute on 2 cores
 """
-import sys
 from pathlib import Path
 
 import numpy as np
 
+from sphcore.scene import load_scene
+from sphcore.solver import Simulation, SimulationError
+
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-from sphcore.scene import load_scene  # noqa: E402
-from sphcore.solver import Simulation, SimulationError  # noqa: E402
 
 DTS = np.geomspace(1e-5, 1e-2, 10)
 CFLS = np.geomspace(0.05, 2.0, 9)

@@ -3,17 +3,14 @@ hydrostatic_3d --quick``) at 2.3 and at 3 spacings, interleaved and repeated so 
 same machine load. Prints steps, stepping wall time (first step excluded), time per step and the
 single-particle pressure error per run.
 
-    python scripts/hydrostatic_support.py [--repeats 2] [--supports 2.3 3.0]
+    python scripts/investigations/hydrostatic_support.py [--repeats 2] [--supports 2.3 3.0]
 
 About 5 minutes on 2 cores with the defaults.
 """
 import argparse
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from launch.validate import CaseOptions, hydrostatic  # noqa: E402
+from launch.validate import CaseOptions, hydrostatic
 
 
 def main():

@@ -2,18 +2,17 @@
 the old setting (support 2.3 spacings, no shifting), one change at a time, and the shipped one, all
 at dx = 0.02 unless said (docs/VALIDATION.md quotes the output).
 
-    .venv/bin/python scripts/probe_taylor_green.py        # about 2 minutes on 2 cores
+    .venv/bin/python scripts/investigations/probe_taylor_green.py        # about 2 minutes on 2 cores
 """
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-from sphcore.scene import load_scene  # noqa: E402
-from sphcore.solver import Simulation  # noqa: E402
+from sphcore.scene import load_scene
+from sphcore.solver import Simulation
+
+ROOT = Path(__file__).resolve().parents[2]
 
 OLD = ["sph.support=2.3", "terms.shifting=0.0"]  # the scene before the support and shifting changes
 CASES = [("support 2.3 (dx = 0.02)", OLD), ("support 2.3, dx = 0.01", OLD + ["particles.spacing=0.01"]),

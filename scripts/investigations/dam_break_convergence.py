@@ -4,17 +4,14 @@ row the same way; the validation tank is 1.6 m long, the longer one lets every m
 and the front's late speed dZ/dT between the 9th and 14th measured points (T = 5.7 and 8.6) where
 the tank reaches them, against the experiment's.
 
-    python scripts/dam_break_convergence.py [--spacings 0.01 0.005 0.0025] [--long-spacings 0.01 0.005]
+    python scripts/investigations/dam_break_convergence.py [--spacings 0.01 0.005 0.0025] [--long-spacings 0.01 0.005]
 
 About 6 minutes on 2 cores with the defaults (dx = a/80 takes 3 of them).
 """
 import argparse
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from launch.validate import MARTIN_MOYCE_T, CaseOptions, dam_break  # noqa: E402
+from launch.validate import MARTIN_MOYCE_T, CaseOptions, dam_break
 
 LONG_TANK = ("domain.center=[1.5,0.3]", "domain.size=[3.0,0.6]")  # 3 m: the front reaches Z = 15
 

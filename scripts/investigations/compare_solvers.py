@@ -1,15 +1,12 @@
 """WCSPH against DFSPH on validation cases, side by side in one run: error, wall time, steps,
 iterations. Prints a Markdown table (docs/ACCURACY.md, "WCSPH or DFSPH").
 
-    python scripts/compare_solvers.py [--cases dam_break hydrostatic] [--out runs/solvers]
+    python scripts/investigations/compare_solvers.py [--cases dam_break hydrostatic] [--out runs/solvers]
 """
 import argparse
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from launch.validate import CASES, CaseOptions  # noqa: E402
+from launch.validate import CASES, CaseOptions
 
 # (label, overrides) per case: WCSPH as the case ships; DFSPH with the step bound by the flow speed
 # (time.dt raised from the scene's cap) at two density tolerances

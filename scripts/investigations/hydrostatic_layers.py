@@ -1,7 +1,7 @@
 """Where the settled 3D hydrostatic tank's pressure error sits. Each particle's pressure is averaged
 over the last 0.5 s, as ``sph validate hydrostatic_3d`` does, and compared with rho0 g (H - y).
 
-    python scripts/hydrostatic_layers.py [--dx 0.02] [--t-end 4.0] [--set KEY=VALUE ...]
+    python scripts/investigations/hydrostatic_layers.py [--dx 0.02] [--t-end 4.0] [--set KEY=VALUE ...]
 
 Prints, in units of rho0 g H:
 - per group (the particle layers next to the floor, the side walls, the edges where two walls meet,
@@ -17,16 +17,12 @@ Prints, in units of rho0 g H:
 The quick tank (dx = 0.02) takes about a minute on 2 cores, the full one (--dx 0.01) 15 minutes.
 """
 import argparse
-import sys
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from launch.validate import CONFIGS, HYDROSTATIC_3D, depth_layers, settle_and_average  # noqa: E402
-from sphcore.scene import load_scene  # noqa: E402
-from sphcore.solver import Simulation  # noqa: E402
+from launch.validate import CONFIGS, HYDROSTATIC_3D, depth_layers, settle_and_average
+from sphcore.scene import load_scene
+from sphcore.solver import Simulation
 
 
 def tait_hydrostatic(y, H, rho0, c0, g, steps=20000):
