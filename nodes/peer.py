@@ -47,15 +47,11 @@ def decomposition_for(scene, grid, n_peers: int, x=None) -> Decomposition:
 
 
 def take_block(sim: Simulation, dec: Decomposition, rank: int):
-    """Keep only the particles of ``sim`` in the block of ``rank``: the named fields and every
-    carried array (``state.extra``: DFSPH's kappa, the continuity density), filtered alike."""
+    """Keep only the particles of ``sim`` in the block of ``rank``: every field and every carried
+    array (``state.extra``: DFSPH's kappa, the continuity density) filtered alike (``ParticleState.take``)."""
     s = sim.state
-    mine = dec.owner(sim.grid.cells_of(s.x)) == rank
-    for name in ("id", "x", "v", "m", "a", "rho", "p"):
-        setattr(s, name, np.ascontiguousarray(getattr(s, name)[mine]))
-    s.extra = {name: np.ascontiguousarray(values[mine]) for name, values in s.extra.items()}
-    s.n_owned = int(mine.sum())
-    sim._resize_scratch(s.n)
+    sim.state = s.take(dec.owner(sim.grid.cells_of(s.x)) == rank)
+    sim._resize_scratch(sim.state.n)
 
 
 class PeerRecorder:
@@ -212,7 +208,7 @@ def message_limit(sim: Simulation):
     and room for the rest; the final gather also carries per-step statistics, which grow with the
     step. Anything longer is dropped unread (nodes/zenoh_transport.py)."""
     s = sim.state
-    per_row = [s.id, s.x, s.v, s.m, s.a, s.rho, s.p, *s.extra.values()]
+    per_row = s.per_particle().values()  # every field and every carried extra array
     row = sum(a.itemsize * int(np.prod(a.shape[1:])) for a in per_row)
     base = HEADROOM + sim.n_particles * row + 3 * 8 * int(np.sum(sim.grid.ncell))
 

@@ -34,6 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
+from sphcore.state import CARRIED, EXTRA_PREFIX, ParticleState, is_carried, merge_by_id
+
 FORMAT = "sphfluid-checkpoint-1"
 
 
@@ -101,10 +103,9 @@ def _write_error(step: int, path: Path, error: OSError, need: int) -> Checkpoint
 
 
 def part_arrays(sim) -> dict:
-    """The arrays of this peer's part: owned id, x, v, m and the carried (extra_*) arrays."""
+    """The arrays of this peer's part: the carried arrays of its owned rows (state.CARRIED, extra_*)."""
     s = sim.state
-    n = s.n_owned
-    return dict(id=s.id[:n], x=s.x[:n], v=s.v[:n], m=s.m[:n], **{"extra_" + k: a[:n] for k, a in s.extra.items()})
+    return s.carried_arrays(s.n_owned)
 
 
 def _write_npz(file, arrays: dict):
@@ -260,13 +261,12 @@ def load(path: Path) -> Checkpoint:
         if _sha256(p) != entry["sha256"]:
             raise CheckpointError(f"{folder}: part {entry['file']} is corrupt (checksum mismatch)")
         with np.load(p) as z:
-            part = {k: z[k] for k in z.files if k in ("id", "x", "v", "m") or k.startswith("extra_")}
+            part = {k: z[k] for k in z.files if is_carried(k)}
         if len(part["id"]) != entry["particles"]:
             raise CheckpointError(f"{folder}: part {entry['file']} holds {len(part['id'])} particles, the "
                                   f"manifest says {entry['particles']}")
         parts.append(part)
-    from sphcore.state import merge_by_id
-    arrays = merge_by_id(parts, tuple(parts[0]) if parts else ("id", "x", "v", "m"))
+    arrays = merge_by_id(parts, tuple(parts[0]) if parts else CARRIED)
     if len(arrays["id"]) != manifest["particles"] or np.any(np.diff(arrays["id"]) <= 0):
         raise CheckpointError(f"{folder}: {len(arrays['id'])} particles with duplicates or gaps; the run had "
                               f"{manifest['particles']}")
@@ -278,15 +278,15 @@ def load(path: Path) -> Checkpoint:
 
 def restore(sim, ckpt: Checkpoint):
     """Put the checkpoint's particles and step state into a freshly built Simulation of its scene."""
-    from sphcore.state import ParticleState
     a, m = ckpt.arrays, ckpt.manifest
     if len(a["id"]) != sim.n_particles or not np.array_equal(a["id"], np.sort(sim.state.id)):
         raise CheckpointError(f"{ckpt.path}: its particles do not match the scene's ({len(a['id'])} vs "
                               f"{sim.n_particles})")
-    extra = {k[len("extra_"):]: v for k, v in a.items() if k.startswith("extra_")}
-    extra = {k: extra.get(k, np.zeros_like(v[:0], shape=(len(a["id"]),) + v.shape[1:]))
-             for k, v in sim.state.extra.items()}  # what this solver carries (zeros if the file lacks it)
-    sim.state = ParticleState.create(a["id"], a["x"], a["v"], a["m"], sim.dtype, extra=extra)
+    carried = {name: a[name] for name in CARRIED}
+    for name, values in sim.state.extra.items():  # what this solver carries (zeros if the file lacks it)
+        key = EXTRA_PREFIX + name
+        carried[key] = a[key] if key in a else np.zeros_like(values[:0], shape=(len(a["id"]),) + values.shape[1:])
+    sim.state = ParticleState.from_carried(carried, sim.dtype)
     sim._resize_scratch(sim.state.n)
     sim.step_index, sim.t, sim.dt, sim.dt_prev = int(m["step"]), float(m["t"]), float(m["dt"]), float(m["dt_prev"])
     sim.leaks, sim.max_neighbours = int(m["leaks"]), int(m["max_neighbours"])

@@ -25,10 +25,7 @@ import numpy as np
 from numba import literally, njit, prange
 
 from sphcore.backends.literal import literal_dispatch
-
-
-class GridOverflow(RuntimeError):
-    pass
+from sphcore.state import CARRIED
 
 
 @njit(inline="always")
@@ -315,9 +312,10 @@ class Grid:
             self._keys = np.empty(n, dtype=np.int64)
             self._perm = np.empty(n, dtype=np.int64)
 
-    def sort(self, state, arrays=("id", "x", "v", "m")):
-        """Reorder the rows of ``state`` (the named arrays and state.extra) by (cell, id): owned rows
-        first, then ghost rows, each sorted."""
+    def sort(self, state):
+        """Reorder the rows of ``state`` by (cell, id): owned rows first, then ghost rows, each
+        sorted. The carried fields (sphcore.state.CARRIED) and state.extra follow their rows; the derived
+        ones are left as they are (the step recomputes them after the sort)."""
         n = state.n
         self._ensure(n)
         compute_cell_keys(state.x, state.n_owned, self.origin, self.inv_cell, self.ncell, self._keys)
@@ -327,7 +325,7 @@ class Grid:
             raise RuntimeError(f"{mixed} grid cells hold both owned and ghost particles: a migration was missed")
         self.contiguous = state.n_owned == n
         self.last_permutation = self._perm[:n]  # row k of the sorted state came from row perm[k]
-        for name in arrays:
+        for name in CARRIED:
             setattr(state, name, self._gather(name, getattr(state, name)))
         for name, arr in state.extra.items():
             state.extra[name] = self._gather("extra:" + name, arr)

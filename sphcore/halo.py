@@ -34,7 +34,7 @@ from typing import Protocol
 
 import numpy as np
 
-from sphcore.state import ParticleState
+from sphcore.state import ParticleState, carried_layout
 
 
 class Reject(ValueError):
@@ -106,18 +106,9 @@ class NullHalo:
 NULL_HALO = NullHalo()
 
 
-def _carried(state, n) -> dict:
-    """What travels with a particle to another peer: id, x, v, m and the state's extra arrays."""
-    arrays = {name: getattr(state, name)[:n] for name in ("id", "x", "v", "m")}
-    arrays.update({"extra_" + k: a[:n] for k, a in state.extra.items()})
-    return arrays
-
-
 def _state_of(parts, dtype) -> ParticleState:
-    """A state from particle messages (_carried dicts), in order."""
-    cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-    extra = {k[len("extra_"):]: a for k, a in cat.items() if k.startswith("extra_")}
-    return ParticleState.create(cat["id"], cat["x"], cat["v"], cat["m"], dtype, extra=extra)
+    """A state from particle messages (``ParticleState.carried_arrays`` dicts), joined in order."""
+    return ParticleState.from_carried({k: np.concatenate([p[k] for p in parts]) for k in parts[0]}, dtype)
 
 
 def encode_commands(commands: list) -> np.ndarray:
@@ -182,9 +173,7 @@ class PeerHalo:
             n = len(ids)
             if n > sim.n_particles:
                 raise Reject("count", f"{what}: {n} particles, the scene has {sim.n_particles}")
-            expected = {"id": ((n,), np.int64), "x": ((n, 3), dtype), "v": ((n, 3), dtype), "m": ((n,), dtype)}
-            expected.update({"extra_" + k: ((n,) + a.shape[1:], dtype) for k, a in self._extra_shapes.items()})
-            expect_arrays(msg, expected, what)
+            expect_arrays(msg, carried_layout(n, dtype, self._extra_shapes), what)
             if not (msg["m"] > 0).all():
                 raise Reject("mass", f"{what}: a mass m <= 0")
             if n and (ids.min() < 0 or ids.max() >= sim.n_particles or len(np.unique(ids)) != n):
@@ -234,7 +223,7 @@ class PeerHalo:
         new = type(self.dec).from_histograms(ncell, self.dec.dims, [total[f"h{a}"] for a in range(3)],
                                              self.dec.periodic)
         owner = new.owner(cells)
-        own = _carried(s, n)
+        own = s.carried_arrays(n)
         for q in self.others:
             self._send(q, (step, "migrate"), {k: v[owner == q] for k, v in own.items()}, "migrate")
         self.migrated += int(np.count_nonzero(owner != self.rank))
@@ -266,7 +255,7 @@ class PeerHalo:
         s = sim.state
         n = s.n_owned
         # 1a: particles that crossed into a neighbour's block go to it (they moved less than a cell)
-        own = _carried(s, n)
+        own = s.carried_arrays(n)
         self._extra_shapes = {k: a[:0] for k, a in s.extra.items()}
         cells = sim.grid.cells_of(own["x"])
         owner = self.dec.owner(cells)

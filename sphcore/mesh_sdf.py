@@ -23,8 +23,6 @@ from pathlib import Path
 
 import numpy as np
 
-HEADER = 24
-
 
 def cache_dir() -> Path:
     return Path(os.environ.get("SPH_CACHE_DIR", Path.home() / ".cache" / "sphfluid"))

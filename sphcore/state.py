@@ -6,26 +6,64 @@ follow them). Vectors always have 3 components; in 2D scenes z = 0.
 
 Fields (float = float32 or float64, the run's precision):
 
-=========  ========  =======  ==========================================================
-field      shape     dtype    meaning (unit)
-=========  ========  =======  ==========================================================
-id         (n,)      int64    stable global particle id, never reused
-x          (n, 3)    float    position (m)
-v          (n, 3)    float    velocity (m/s); half-step velocity with the leapfrog integrator
-a          (n, 3)    float    acceleration of the current step (m/s^2)
-m          (n,)      float    mass (kg)
-rho        (n,)      float    density (kg/m^3)
-p          (n,)      float    pressure (Pa)
-=========  ========  =======  ==========================================================
+=========  ========  =======  =============  ============================================================
+field      shape     dtype    unit           meaning; why it is carried (CARRIED) or not (DERIVED)
+=========  ========  =======  =============  ============================================================
+id         (n,)      int64                   stable global particle id, never reused (CARRIED: the
+                                             neighbour order and every gather by id rest on it)
+x          (n, 3)    float    m              position (CARRIED: integrated)
+v          (n, 3)    float    m/s            velocity; half-step velocity with the leapfrog integrator
+                                             (CARRIED: integrated)
+m          (n,)      float    kg             mass (CARRIED: fixed per particle)
+a          (n, 3)    float    m/s^2          acceleration of the current step (DERIVED)
+rho        (n,)      float    kg/m^3         density (DERIVED: the summation density every step; the
+                                             continuity density is carried in ``extra``)
+p          (n,)      float    Pa             pressure (DERIVED: from rho by the equation of state)
+=========  ========  =======  =============  ============================================================
 
-``extra`` holds further per-particle arrays that must follow the particles when rows are
-reordered (the grid reorders them with the rest), move with them to another peer and go into
-checkpoints: DFSPH's kappa = p / rho^2, its warm start (physics/dfsph.py). Per-step scratch of optional terms (the XSPH
-correction, the vorticity) lives in the solver instead, since it is recomputed every step.
+``extra`` holds the per-solver arrays that are CARRIED too: a step reads the value the previous
+step left, so they must follow their particle when the grid reorders rows, move with it to another
+peer (migration, rebalancing, ``take_block``) and go into checkpoints (as ``extra_<name>``). The
+solver adds the ones it needs (sphcore/solver.py ``extra_names``; 0 is a cold start):
+
+=========  ========  =======  =============  ============================================================
+extra      shape     dtype    unit           meaning; why it is carried
+=========  ========  =======  =============  ============================================================
+kappa      (n,)      float    m^5/(kg s^2)   DFSPH's kappa = p / rho^2, the next density solve's warm
+                                             start (physics/dfsph.py)
+density    (n,)      float    kg/m^3         sph.density = "continuity": rho integrated in time by
+                                             d rho / dt, not recomputed (physics/continuity.py)
+=========  ========  =======  =============  ============================================================
+
+Every place that copies, moves or saves particles (the grid's reorder, the halo's migrants and
+rebalancing, ``take_block``, checkpoints, the CUDA backend) takes the field names from ``CARRIED`` /
+``FIELDS`` and the extras from ``state.extra`` through the helpers below, so a new carried array is
+declared once. Per-step scratch of optional terms (the XSPH correction, the vorticity) lives in the
+solver instead, since it is recomputed every step.
 """
 from dataclasses import dataclass, field
 
 import numpy as np
+
+CARRIED = ("id", "x", "v", "m")   # travel with a particle (with state.extra); the rest is recomputed
+DERIVED = ("a", "rho", "p")       # recomputed every step from the carried fields
+FIELDS = CARRIED + DERIVED        # every named per-particle field
+ROW_SHAPE = {"id": (), "x": (3,), "v": (3,), "m": (), "a": (3,), "rho": (), "p": ()}  # one row of each
+EXTRA_PREFIX = "extra_"           # state.extra[name] travels (wire, checkpoints) as "extra_<name>"
+
+
+def is_carried(name: str) -> bool:
+    """Whether ``name`` is the key of a carried array in a message or a checkpoint part."""
+    return name in CARRIED or name.startswith(EXTRA_PREFIX)
+
+
+def carried_layout(n: int, dtype, extra: dict) -> dict:
+    """name -> (shape, dtype) of the carried arrays of n particles: what a particle message must
+    hold. ``extra``: the state's extra arrays (only their row shapes are used)."""
+    layout = {name: ((n,) + ROW_SHAPE[name], np.int64 if name == "id" else dtype) for name in CARRIED}
+    layout.update({EXTRA_PREFIX + k: ((n,) + a.shape[1:], dtype) for k, a in extra.items()})
+    return layout
+
 
 @dataclass
 class ParticleState:
@@ -56,6 +94,13 @@ class ParticleState:
             extra=extra,
         )
 
+    @classmethod
+    def from_carried(cls, arrays: dict, dtype) -> "ParticleState":
+        """The inverse of ``carried_arrays``: a state (all rows owned, derived fields zero) from the
+        carried arrays of a message or a checkpoint, extras under "extra_<name>"."""
+        extra = {k[len(EXTRA_PREFIX):]: a for k, a in arrays.items() if k.startswith(EXTRA_PREFIX)}
+        return cls.create(*(arrays[name] for name in CARRIED), dtype, extra=extra)
+
     @property
     def n(self) -> int:
         return self.id.shape[0]
@@ -63,6 +108,28 @@ class ParticleState:
     @property
     def dtype(self):
         return self.x.dtype
+
+    def carried_arrays(self, n: int) -> dict:
+        """The carried arrays of rows 0..n-1 (views): id, x, v, m, then each extra as "extra_<name>".
+        These names are the wire's and the checkpoints' (keep them: old checkpoints must load)."""
+        arrays = {name: getattr(self, name)[:n] for name in CARRIED}
+        arrays.update({EXTRA_PREFIX + k: a[:n] for k, a in self.extra.items()})
+        return arrays
+
+    def per_particle(self) -> dict:
+        """Every per-particle array, all rows: the named fields, then each extra as "extra_<name>"."""
+        arrays = {name: getattr(self, name) for name in FIELDS}
+        arrays.update({EXTRA_PREFIX + k: a for k, a in self.extra.items()})
+        return arrays
+
+    def take(self, rows) -> "ParticleState":
+        """A new state of the rows ``rows`` (an index array or a boolean mask over all rows), in that
+        order: every field, derived ones included (a, rho, p keep their values), and every extra
+        array filtered alike, as contiguous copies. The taken rows are all owned (n_owned = their
+        count): take whole particle sets (a peer's block, a checkpoint's part), not ghosts."""
+        taken = {name: np.ascontiguousarray(getattr(self, name)[rows]) for name in FIELDS}
+        extra = {k: np.ascontiguousarray(a[rows]) for k, a in self.extra.items()}
+        return ParticleState(**taken, n_owned=taken["id"].shape[0], extra=extra)
 
 
 def merge_by_id(parts: list[dict], keys) -> dict:

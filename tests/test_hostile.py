@@ -262,15 +262,14 @@ def test_sph_control_says_so_when_no_run_answers(capsys):
 def _forge_ahead(cluster, step):
     """Forged messages for ``step``, put in the mailboxes ahead of the genuine ones; returns the
     reasons each is expected to be dropped for, by receiving rank."""
-    from sphcore.halo import _carried
     net = cluster.network
     one, zero = cluster.peers[1].state, cluster.peers[0].state
     # peer 1's particles farthest from the cut: in its block, so none is peer 0's migrant; peer 0's
     # farthest: not in peer 1's incoming zone
     far_one = np.argsort(-one.x[:one.n_owned, 0], kind="stable")[:4]
     far_zero = np.argsort(zero.x[:zero.n_owned, 0], kind="stable")[:2]
-    ghost = {k: a[far_one] for k, a in _carried(one, one.n_owned).items()}
-    intruder = {k: a[far_zero] for k, a in _carried(zero, zero.n_owned).items()}
+    ghost = {k: a[far_one] for k, a in one.carried_arrays(one.n_owned).items()}
+    intruder = {k: a[far_zero] for k, a in zero.carried_arrays(zero.n_owned).items()}
     n_ghosts = {r: h._ghost_rows.get(1 - r, (0, 0)) for r, h in enumerate(cluster.halos)}
     expected = {0: [], 1: []}
 
