@@ -2,6 +2,9 @@
 #   make demo   set up .venv and run the demo scene (3D dam break, ~49k particles, to t = 0.4 s, 2 peer processes + viewer) into runs/demo
 #   make test   set up .venv and run the default test suite
 # Others:
+#   make check         the fast tier for edits (pytest -m fast, under 3 minutes on 2 cores once numba's cache
+#                      is warm): scene validation, kernels and neighbours, conservation, 1 process vs 2 peers
+#                      bitwise, hostile messages, the wire format, CLI errors; a subset of make test
 #   make test-slow     the heavier suites (pytest -m slow)
 #   make test-gpu      on a machine with a GPU: CPU/CUDA parity, a 200-step run, the GPU benchmark (runs/gpu/log.txt)
 #   make bench         sph bench (add the reference codes with: bash scripts/setup_bench.sh; make bench-external)
@@ -9,7 +12,7 @@
 PY := .venv/bin/python
 SPH := .venv/bin/sph
 
-.PHONY: setup demo test test-slow test-gpu bench bench-external
+.PHONY: setup demo test check test-slow test-gpu bench bench-external
 
 setup:
 	bash scripts/setup.sh
@@ -19,6 +22,9 @@ demo: setup
 
 test: setup
 	$(PY) -m pytest
+
+check: setup
+	$(PY) -m pytest -m fast
 
 test-slow: setup
 	$(PY) -m pytest -m slow

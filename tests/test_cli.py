@@ -146,6 +146,7 @@ BAD_RUNS = [
 ]
 
 
+@pytest.mark.fast
 @pytest.mark.parametrize("args,fragments", [b[1:] for b in BAD_RUNS], ids=[b[0] for b in BAD_RUNS])
 def test_bad_input_exits_2_names_the_problem_and_writes_nothing(args, fragments, tmp_path, capsys):
     # Given an output folder that does not exist yet
@@ -169,6 +170,7 @@ def test_bad_input_exits_2_names_the_problem_and_writes_nothing(args, fragments,
     (["--precision", "f16"], ["--precision", "f16"]),
     (["--backend", "opencl"], ["--backend", "opencl"]),
 ], ids=["steps-and-until", "negative-steps", "until-zero", "precision-f16", "backend-opencl"])
+@pytest.mark.fast
 def test_bad_options_exit_2_before_anything_runs(args, fragments, tmp_path, capsys):
     out = tmp_path / "out"
     with pytest.raises(SystemExit) as exc:
@@ -184,6 +186,7 @@ def test_bad_options_exit_2_before_anything_runs(args, fragments, tmp_path, caps
 # sph scene
 # ---------------------------------------------------------------------------------------------
 
+@pytest.mark.fast
 def test_scene_prints_the_resolved_scene_with_overrides(capsys):
     # When the dam break is printed with a kernel override
     rc = main(["scene", DAM_BREAK, "--set", "sph.kernel=muller"])
@@ -198,6 +201,7 @@ def test_scene_prints_the_resolved_scene_with_overrides(capsys):
     assert s.sph.kernel == "muller" and s.particles.spacing == 0.0125
 
 
+@pytest.mark.fast
 def test_scene_with_bad_override_exits_2(capsys):
     rc = main(["scene", DAM_BREAK, "--set", "sph.kernel=gaussian"])
     cap = capsys.readouterr()
@@ -217,6 +221,7 @@ def test_scene_with_bad_override_exits_2(capsys):
     (["bench", "--help"], ["--sizes", "--precisions", "--threads", "--steps", "--external", "--json"]),
     (["scene", "--help"], ["--set", "config"]),
 ], ids=["sph", "run", "bench", "scene"])
+@pytest.mark.fast
 def test_help_exits_0_and_lists_options(argv, mentions, capsys):
     with pytest.raises(SystemExit) as exc:
         main(argv)
@@ -226,6 +231,7 @@ def test_help_exits_0_and_lists_options(argv, mentions, capsys):
         assert m in out, f"{m!r} missing from help of {argv}"
 
 
+@pytest.mark.fast
 def test_no_command_is_a_usage_error(capsys):
     with pytest.raises(SystemExit) as exc:
         main([])

@@ -57,6 +57,7 @@ def test_the_balancer_moved_cuts_in_the_runs_above():
     assert MOVED_CUTS and max(MOVED_CUTS.values()) > 0, MOVED_CUTS
 
 
+@pytest.mark.fast
 def test_optional_terms_across_peers_equal_one_peer_bitwise():
     # Given vorticity confinement (needs the ghosts' omega: a third exchange), XSPH and surface tension
     sc = scene("dam_break", "particles.spacing=0.05", "terms.vorticity_confinement=0.05", "terms.xsph=0.3",
@@ -70,6 +71,7 @@ def test_optional_terms_across_peers_equal_one_peer_bitwise():
         assert np.array_equal(result[key], reference[key]), key
 
 
+@pytest.mark.fast
 def test_in_process_network_delivers_by_receiver_sender_and_tag_and_detects_deadlock():
     from nodes.cluster import DeadlockError, _drive
     from nodes.transport import InProcessNetwork
@@ -91,6 +93,7 @@ def test_in_process_network_delivers_by_receiver_sender_and_tag_and_detects_dead
         _drive([receiver(b, "never")], max_rounds=5)
 
 
+@pytest.mark.fast
 def test_balanced_cuts_are_the_best_cell_layer_cuts():
     from sphcore.decomposition import Decomposition
     rng = np.random.default_rng(3)

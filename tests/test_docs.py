@@ -1,7 +1,11 @@
 """Docs stay true to the code: the scene-key reference in docs/USAGE.md is the generated one."""
 import importlib.util
 
+import pytest
+
 from conftest import ROOT
+
+pytestmark = pytest.mark.fast  # make check runs this whole module
 
 
 def test_usage_key_reference_is_up_to_date():

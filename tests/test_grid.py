@@ -5,6 +5,8 @@ import pytest
 from sphcore.grid import Grid, brute_force_neighbours
 from sphcore.state import ParticleState
 
+pytestmark = pytest.mark.fast  # make check runs this whole module
+
 
 def make_state(x, rng):
     n = len(x)

@@ -294,6 +294,7 @@ def _forge_ahead(cluster, step):
     return expected
 
 
+@pytest.mark.fast
 def test_in_process_peers_drop_what_breaks_the_protocol_and_stay_bitwise_equal():
     from nodes.cluster import InProcessCluster
     # Given two in-process clusters of the same scene, one of them fed forged messages ahead of

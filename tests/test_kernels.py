@@ -7,6 +7,8 @@ import pytest
 from sphcore.choices import Kernel
 from sphcore.physics.kernels import dw_dr, dw_dr_over_r, kernel_constants, lap_w_viscosity, w
 
+pytestmark = pytest.mark.fast  # make check runs this whole module
+
 KERNELS = [Kernel.MULLER, Kernel.CUBIC_SPLINE, Kernel.WENDLAND_C2]
 
 

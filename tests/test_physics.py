@@ -32,6 +32,7 @@ def momenta(sim):
     return P, L
 
 
+@pytest.mark.fast
 @pytest.mark.parametrize("kernel", ["muller", "cubic_spline", "wendland_c2"])
 @pytest.mark.parametrize("dim", [2, 3])
 def test_free_blob_conserves_linear_and_angular_momentum(dim, kernel):
@@ -55,6 +56,7 @@ def test_free_blob_conserves_linear_and_angular_momentum(dim, kernel):
     assert np.abs(s.v).max() > 0.1  # the blob really moved
 
 
+@pytest.mark.fast
 @pytest.mark.parametrize("viscosity", ["artificial", "morris", "muller", "none"])
 def test_periodic_box_conserves_linear_momentum(viscosity):
     # Given Taylor-Green flow plus a uniform drift in the periodic unit square
@@ -70,6 +72,7 @@ def test_periodic_box_conserves_linear_momentum(viscosity):
     assert sim.leaks == 0
 
 
+@pytest.mark.fast
 @pytest.mark.parametrize("kernel", ["muller", "cubic_spline", "wendland_c2"])
 @pytest.mark.parametrize("dim", [2, 3])
 def test_lattice_at_rest_in_a_box_sees_rest_density_at_walls_edges_and_corners(dim, kernel):
@@ -127,6 +130,7 @@ def test_dam_break_runs_without_nan_or_leak():
     assert sim.max_compression < 0.1  # the short spike when the front hits the far wall
 
 
+@pytest.mark.fast
 def test_float32_and_float64_agree_to_float32_accuracy():
     runs = {}
     for precision in ("f32", "f64"):

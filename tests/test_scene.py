@@ -15,6 +15,8 @@ from sphcore.scene import SceneError, load_scene, parse_override, scene_from_dic
 
 from conftest import CONFIGS
 
+pytestmark = pytest.mark.fast  # make check runs this whole module
+
 CONFIG_FILES = sorted(CONFIGS.glob("*.toml"))
 CONFIG_IDS = [p.stem for p in CONFIG_FILES]
 

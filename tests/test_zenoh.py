@@ -23,6 +23,7 @@ from sphcore.halo import Reject
 ROOT = Path(__file__).resolve().parent.parent
 
 
+@pytest.mark.fast
 def test_wire_round_trip_keeps_names_dtypes_shapes_and_bytes():
     arrays = {"id": np.arange(5, dtype=np.int64), "x": np.random.default_rng(0).random((5, 3)),
               "rho": np.ones(5, dtype=np.float32), "empty": np.zeros((0, 3)), "flag": np.array([1, 0], np.uint8)}
@@ -61,12 +62,14 @@ def _corrupt_header(data, **changes):
     (lambda d: d[:10] + b"}" + d[11:], "unreadable header"),
     (lambda d: d[:10] + b"[" + d[11:], "unreadable header"),
 ])
+@pytest.mark.fast
 def test_wire_rejects_malformed_and_foreign_messages(mutate, fragment):
     data = wire.encode("run-1", 3, "fields", 1, 0, {"x": np.zeros((2, 3))})
     with pytest.raises(wire.WireError, match=fragment.replace(".", r"\.").replace("(", r"\(")):
         wire.decode(mutate(data), "run-1", 0, 3)
 
 
+@pytest.mark.fast
 def test_run_ids_must_be_safe_key_segments():
     assert wire.check_run_id("abc-123_x") == "abc-123_x"
     for bad in ("", "a/b", "a*", "x" * 65, "a b"):
@@ -139,6 +142,7 @@ def _decode_or_wire_error(data):
         return e
 
 
+@pytest.mark.fast
 def test_decode_of_random_truncated_and_mutated_bytes_raises_only_wire_error():
     # Given a genuine message and a seeded stream of damage: truncation, byte flips, insertions,
     # random bytes, and headers whose fields hold values of every JSON type
@@ -189,6 +193,7 @@ def test_decode_of_random_truncated_and_mutated_bytes_raises_only_wire_error():
     assert outcomes["refused"] > 2000 and outcomes["decoded"] > 0, outcomes  # both paths were exercised
 
 
+@pytest.mark.fast
 @pytest.mark.parametrize("where", ["arrays", "run", "phase", "top"])
 def test_a_deeply_nested_60_kB_header_is_refused_before_the_json_parser_sees_it(where):
     # Given a 60 kB header nesting brackets 30,000 deep (json.loads would raise RecursionError)
@@ -207,6 +212,7 @@ def test_a_deeply_nested_60_kB_header_is_refused_before_the_json_parser_sees_it(
     assert time.perf_counter() - t0 < 0.5
 
 
+@pytest.mark.fast
 def test_brackets_inside_strings_do_not_count_as_nesting_and_the_schema_is_exact():
     data = wire.encode("run-1", 3, "fields", 1, 0, {"x": np.zeros((2, 3))})
     head, body = _header_of(data)
@@ -224,6 +230,7 @@ def test_brackets_inside_strings_do_not_count_as_nesting_and_the_schema_is_exact
             wire.decode(_framed(changed, body), "run-1", 0, 3)
 
 
+@pytest.mark.fast
 def test_a_message_over_the_size_cap_is_refused_before_parsing():
     data = wire.encode("run-1", 3, "fields", 1, 0, {"x": np.zeros(1000)})
     with pytest.raises(wire.WireError, match="exceeds the limit of 1000 bytes") as e:
