@@ -1,11 +1,12 @@
 """Stability at the extremes: over a hundred configurations at and beyond the limits of every knob.
 
 Each one either runs stable — finite state, no leak, every particle on the fluid side of every wall —
-or stops at once with a SimulationError naming the step, the cause and particle ids. Never a
-silent NaN, never a particle through a wall. A few outcomes are certain and asserted as such (one
-particle falling is stable; a fixed step 20 times the acoustic limit stops with "CFL violation").
-The default suite runs the matrix on the tiny scene (498 particles) for a few steps;
-``pytest -m slow`` runs it longer. scripts/stability_map.py draws the map of docs/ACCURACY.md.
+or stops with a SimulationError naming the step, the cause and particle ids. Never a silent NaN,
+never a particle through a wall. The default suite runs the matrix on the tiny scene (498
+particles) for 12 steps and pins each configuration's outcome: "stable", or a stop at a given step
+with a given diagnostic (the key part of the message; see ``STOPS``), so a case that changes
+outcome fails. ``pytest -m slow`` runs the matrix for 300 steps under the general rule only.
+scripts/stability_map.py draws the map of docs/ACCURACY.md.
 """
 import re
 
@@ -40,6 +41,27 @@ def run(overrides=(), precision="f64", steps=12, place=None):
     except SimulationError as e:
         return "stopped", str(e)
     return "stable", sim
+
+
+def stops(step, cause):
+    """The pinned outcome of a configuration that stops: at step ``step``, with a message whose cause
+    starts with ``cause``."""
+    return ("stopped", step, cause)
+
+
+STABLE = ("stable",)
+
+
+def expect(outcome, result, expected):
+    """``check`` the rule, then the pinned outcome: "stable", or the step and the cause of the stop."""
+    check(outcome, result)
+    if expected == STABLE:
+        assert outcome == "stable", f"expected to run clean, stopped: {result}"
+        return
+    _, step, cause = expected
+    assert outcome == "stopped", f"expected to stop at step {step} with {cause!r}, ran clean"
+    assert result.startswith(f"step {step} "), f"expected the stop at step {step}: {result}"
+    assert DIAGNOSTIC.match(result).group(1).startswith(cause), f"expected {cause!r}: {result}"
 
 
 def check(outcome, result):
@@ -103,11 +125,31 @@ MATRIX = (
 )
 
 
+# The outcome of each configuration over 12 steps, the same in float64 and float32: every one not
+# named here runs clean. The acoustic limit of the tiny scene is h / c0 = 6.85e-4 s at CFL 1.
+SPEED_OF_SOUND = "flow speed reached the speed of sound"
+STOPS = {
+    "fixed_dt=0.002": stops(0, "CFL violation: time.dt = 0.002 s exceeds the acoustic stability limit"),
+    "fixed_dt=0.01": stops(0, "CFL violation: time.dt = 0.01 s exceeds the acoustic stability limit"),
+    "fixed_dt=0.002,leapfrog": stops(0, "CFL violation: time.dt = 0.002 s exceeds the acoustic stability limit"),
+    "fixed_dt=0.01,leapfrog": stops(0, "CFL violation: time.dt = 0.01 s exceeds the acoustic stability limit"),
+    "c0=0.5": stops(0, SPEED_OF_SOUND + " (max |v| = 1 m/s >= sph.sound_speed = 0.5 m/s)"),  # the drop's 1 m/s
+    "gravity=100000.0": stops(3, SPEED_OF_SOUND),  # 29 m/s after 3 steps against c0 = 20 m/s
+    "surface_tension=1e3": stops(8, SPEED_OF_SOUND),  # 22 m/s after 8 steps
+}
+
+
 @pytest.mark.parametrize("name,overrides,precision", MATRIX, ids=[m[0] + "," + m[2] for m in MATRIX])
 def test_matrix(name, overrides, precision):
-    check(*run(overrides, precision))
+    expect(*run(overrides, precision), STOPS.get(name, STABLE))
 
 
+@pytest.mark.fast
+def test_every_pinned_stop_is_in_the_matrix():
+    assert set(STOPS) <= {m[0] for m in MATRIX}
+
+
+@pytest.mark.fast
 def test_the_matrix_has_a_hundred_configurations():
     assert len(MATRIX) + len(SPECIAL) * len(PRECISIONS) >= 100
 
@@ -174,36 +216,39 @@ def _fast_into_wall(sim):
     return ParticleState.create(s.id, s.x, v, s.m, sim.dtype)
 
 
-SPECIAL = [("one particle", _one, "stable"), ("two particles", _two, None), ("coincident", _coincident, None),
-           ("on cell faces", _on_cell_faces, None), ("on the floor", _on_walls, None),
-           ("collapsed column", _collapsed, "stopped"), ("50 m/s into the floor", _fast_into_wall, "stopped")]
+SPECIAL = [("one particle", _one, STABLE), ("two particles", _two, STABLE), ("coincident", _coincident, STABLE),
+           ("on cell faces", _on_cell_faces, STABLE), ("on the floor", _on_walls, STABLE),
+           ("collapsed column", _collapsed, stops(0, "density ratio rho/rho0 reached")),
+           ("50 m/s into the floor", _fast_into_wall, stops(0, SPEED_OF_SOUND + " (max |v| = 50 m/s"))]
 
 
 @pytest.mark.parametrize("name,place,expected", SPECIAL, ids=[s[0] for s in SPECIAL])
 @pytest.mark.parametrize("precision", PRECISIONS)
 def test_special_placements(name, place, expected, precision, monkeypatch):
     monkeypatch.setattr(check, "allow_first_step_leaks", place is _on_walls, raising=False)
-    outcome = check(*run(precision=precision, place=place))
-    if expected:
-        assert outcome == expected
+    expect(*run(precision=precision, place=place), expected)
 
 
+@pytest.mark.fast
 def test_one_particle_falls_freely():
     outcome, sim = run(["time.mode='fixed'", "time.dt=1e-4"], place=_one, steps=50)
     assert outcome == "stable"
     assert np.isclose(sim.state.v[0, 1], -9.81 * 50 * 1e-4, rtol=1e-9)
 
 
+@pytest.mark.fast
 def test_a_fixed_step_far_beyond_the_limit_stops_with_a_cfl_violation():
     outcome, message = run(["time.mode='fixed'", "time.dt=1e-2"])
     assert outcome == "stopped" and "CFL violation" in message and "step 0 " in message
 
 
+@pytest.mark.fast
 def test_mach_one_stops_with_the_speed_of_sound_named():
     outcome, message = run(place=_fast_into_wall)
     assert outcome == "stopped" and "speed of sound" in message and "step 0 " in message
 
 
+@pytest.mark.fast
 def test_collapsed_column_stops_on_the_density_ratio():
     outcome, message = run(place=_collapsed)
     assert outcome == "stopped" and "density ratio" in message
@@ -212,14 +257,15 @@ def test_collapsed_column_stops_on_the_density_ratio():
 @pytest.mark.parametrize("offset", [1e2, 1e4])
 def test_float32_far_from_the_origin(offset):
     """The tiny scene moved 'offset' metres away: float32 keeps ~7 digits, so at 1e4 m a spacing of
-    1.25e-2 m is resolved to ~8 %. It must still either run or stop with a diagnostic."""
+    1.25e-2 m is resolved to ~8 %. It runs clean."""
     sc = load_scene(TINY)
     over = [f"domain.center=[{offset + c},{c2},{c3}]" for c, c2, c3 in [sc.domain.center]]
     blocks = [f"fluid.blocks[0].min=[{offset},0,0]", f"fluid.blocks[0].max=[{offset + 0.15},0.0375,0.15]",
               f"fluid.blocks[1].center=[{offset + 0.075},0.12,0.075]"]
-    check(*run(over + blocks, "f32"))
+    expect(*run(over + blocks, "f32"), STABLE)
 
 
+@pytest.mark.fast
 def test_an_empty_block_is_a_scene_error_not_a_crash():
     """A fluid block that falls outside the tank (an empty region instead of fluid) is refused."""
     with pytest.raises(SceneError, match="no particle"):
@@ -228,7 +274,7 @@ def test_an_empty_block_is_a_scene_error_not_a_crash():
 
 def test_a_large_empty_tank_is_fine():
     """One drop in a tank 100 times its size: mostly empty cells."""
-    check(*run(["domain.size=[3,3,3]", "domain.center=[0.075,1.4,0.075]"]))
+    expect(*run(["domain.size=[3,3,3]", "domain.center=[0.075,1.4,0.075]"]), STABLE)
 
 
 @pytest.mark.slow
