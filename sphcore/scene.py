@@ -109,6 +109,8 @@ class Terms:
     surface_tension: float = spec(0.0, "colour-field surface tension sigma in N/m (0 = off)", range=(0.0, 1.0e3))
     surface_threshold: float = spec(0.1, "colour-gradient threshold as a fraction of 1/spacing", range=(0.0, 10.0))
     vorticity_confinement: float = spec(0.0, "vorticity confinement eps in m/s (0 = off)", range=(0.0, 1.0e3))
+    drag: float = spec(0.0, "linear drag k in 1/s, a += -k v: damps a flow to rest, e.g. to settle a tank before "
+                       "a run (0 = off; keep k dt < 1)", range=(0.0, 1.0e4))
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,7 @@ give the same bits as one process, the density survives a checkpoint, and DFSPH 
 import numpy as np
 import pytest
 
-from sphcore import checkpoint
+from sphcore import checkpoint, stages
 from sphcore.scene import SceneError
 from sphcore.solver import Simulation
 
@@ -38,10 +38,10 @@ def test_rate_is_the_time_derivative_of_the_summation_density():
     # When D rho/Dt comes from the continuity equation (walls included): the density stage advances
     # the carried density by dt_prev D rho/Dt (without storing it: commit=False)
     cont._neighbours()
-    cont.engine.density(cont.prm)  # a fresh run: the carried density starts from the sum
+    cont.engine.run(stages.DENSITY, prm=cont.prm, dt_prev=cont.dtype.type(cont.dt_prev), commit=True)  # a fresh run: the carried density starts from the sum
     carried = cont.state.extra["density"][:n].copy()
     cont.dt_prev = 1e-3
-    cont.engine.density(cont.prm, commit=False)
+    cont.engine.run(stages.DENSITY, prm=cont.prm, dt_prev=cont.dtype.type(cont.dt_prev), commit=False)
     assert np.array_equal(cont.state.extra["density"][:n], carried)
     rate = _by_id(cont, (cont.state.rho[:n] - carried) / cont.dt_prev)
 
@@ -50,8 +50,8 @@ def test_rate_is_the_time_derivative_of_the_summation_density():
         s = summ.state
         s.x[np.argsort(s.id[:n])] = x0 + eps * vel
         summ._neighbours()
-        summ.engine.density(summ.prm)
-        return _by_id(summ, summ.state.rho), _by_id(summ, summ._fill)
+        summ.engine.run(stages.DENSITY, prm=summ.prm, dt_prev=summ.dtype.type(summ.dt_prev), commit=True)
+        return _by_id(summ, summ.state.rho), _by_id(summ, summ.engine.scratch.fill)
     eps = 1e-6
     (rho_plus, fill_plus), (rho_minus, fill_minus) = summed(eps), summed(-eps)
     fd = (rho_plus - rho_minus) / (2 * eps)
@@ -81,9 +81,9 @@ def _column(correction):
     s.extra["density"][:n] = 1000.0 * np.exp(g * (H - s.x[:n, 1]) / c0**2)
     sim._neighbours()
     prm = sim.prm if correction else sim.prm._replace(gravity_y=np.float64(0.0))  # rho^H uses gravity
-    sim.engine.density(prm)
-    sim.engine.diffusion(prm)
-    return float(np.abs(sim._drho[:n]).max())
+    sim.engine.run(stages.DENSITY, prm=prm, dt_prev=sim.dtype.type(sim.dt_prev), commit=True)
+    sim.engine.run(stages.DIFFUSION, prm=prm)
+    return float(np.abs(sim.engine.scratch.drho[:n]).max())
 
 
 def test_diffusion_leaves_a_hydrostatic_column_alone():

@@ -3,7 +3,7 @@ larger steps than WCSPH, the same bits on one process or several, kappa through 
 import numpy as np
 import pytest
 
-from sphcore import checkpoint
+from sphcore import checkpoint, stages
 from sphcore.scene import SceneError
 from sphcore.solver import Simulation, SimulationError
 
@@ -19,24 +19,27 @@ def test_diagonal_is_the_response_of_a_particle_to_its_own_pressure():
     e, s = sim.engine, sim.state
     prm = sim.prm._replace(clamp_negative=False)  # plain Jacobi: lambda = omega s / D, no projection
     sim._neighbours()
-    e.density(prm)
-    e.dfsph_factor(prm)
+    e.run(stages.DENSITY, prm=prm, dt_prev=sim.dtype.type(sim.dt_prev), commit=True)
+    e.run(stages.DFSPH_FACTOR, prm=prm)
     dt = np.float64(0.005)
+    sc = e.scratch
+    solve = dict(prm=prm, arrays={"v": "v_star"})  # the density solve, on v*
     n = s.n_owned
     k = int(np.argmin(np.abs(s.x[:n, 0] - 0.25) + np.abs(s.x[:n, 1] - 0.25)))  # mid-tank
-    sim._v_star[:] = 0.0
-    sim._lam_sum[:] = 0.0
-    e.dfsph_source(prm, False, dt, np.float64(1.0), np.float64(1000.0))
-    before = sim._lam[k]
-    sim._lam[:] = 0.0
-    sim._lam[k] = 1e-6
-    e.dfsph_update(prm, False, np.float64(1.0 / dt))
-    sim._lam_sum[:] = 0.0
-    e.dfsph_source(prm, False, dt, np.float64(1.0), np.float64(1000.0))
+    sc.v_star[:] = 0.0
+    sc.lam_sum[:] = 0.0
+    source = dict(divergence=0, dt=dt, share=np.float64(1.0), rho_ref=np.float64(1000.0))
+    e.run(stages.DFSPH_SOURCE, **solve, **source)
+    before = sc.lam[k]
+    sc.lam[:] = 0.0
+    sc.lam[k] = 1e-6
+    e.run(stages.DFSPH_UPDATE, **solve, inv_dt=np.float64(1.0 / dt))
+    sc.lam_sum[:] = 0.0
+    e.run(stages.DFSPH_SOURCE, **solve, **source)
     # When the predicted density error is measured again
-    change = (sim._lam[k] - before) / sim._inv_d[k] / prm.dfsph_omega
+    change = (sc.lam[k] - before) / sc.inv_d[k] / prm.dfsph_omega
     # Then it fell by exactly lambda D (the Jacobi diagonal of a full neighbourhood)
-    assert change == pytest.approx(-1e-6 / sim._inv_d[k], rel=1e-9)
+    assert change == pytest.approx(-1e-6 / sc.inv_d[k], rel=1e-9)
 
 
 @pytest.fixture(scope="module")

@@ -3,6 +3,7 @@ disordered one, nothing along a wall's normal or in the free-surface layer, and 
 it is off."""
 import numpy as np
 
+from sphcore import stages
 from sphcore.scene import load_scene
 from sphcore.solver import Simulation
 from sphcore.state import ParticleState
@@ -20,9 +21,8 @@ def _drift(sim, v):
     s = sim.state
     sim.state = ParticleState.create(s.id, s.x, v, s.m, sim.dtype, extra=s.extra)
     sim.refresh()
-    sim._resize_scratch(sim.state.n)
-    sim.engine.shifting(sim.prm)
-    return sim._xsph_dv[: sim.state.n_owned].copy()
+    sim.engine.run(stages.SHIFTING, prm=sim.prm)
+    return sim.engine.scratch.dv[: sim.state.n_owned].copy()
 
 
 def test_an_ordered_lattice_is_not_shifted():

@@ -1,10 +1,11 @@
 """CUDA backend (numba-cuda): the stages of a step as thin kernels over the shared row functions.
 
 Every kernel runs one thread per row and calls the same ``*_row`` function as the CPU driver
-(``backends/rows.py``, ``grid.neighbour_row``...), so the physics exists once. Kernels are built per
-combination of compile-time choices (kernel family, EOS, viscosity model...) by small factories and
-kept for the process; the choice integers are closure constants, so NVVM prunes unused branches as
-numba does for the CPU literals.
+(``physics/*.py``, ``grid.neighbour_row``...), so the physics exists once. The stage kernels are
+generated from their declarations (``sphcore/stages.py``, ``backends/generate.cuda_source``): a
+factory per stage builds the kernel for one combination of compile-time choices (kernel family,
+EOS, viscosity model...), kept for the process; the choice integers are closure constants, so NVVM
+prunes unused branches as numba does for the CPU literals.
 
 Binning on the device is the CPU algorithm, step for step: cell keys; histogram (atomic counts);
 inclusive prefix scan; scatter (atomic slots: arbitrary order within a bin); insertion sort of each
@@ -25,15 +26,17 @@ which ``_device`` unwraps). That checks the kernels' indexing, launches, binning
 from __future__ import annotations
 
 import functools
-import math
 
 import numba
 import numpy as np
 from numba import cuda
 
 from sphcore import grid as grid_mod
-from sphcore.backends import BackendUnavailable, rows
-from sphcore.physics.dfsph import quantized_error, quantized_offset
+from sphcore import state as state_fields
+from sphcore.backends import BackendUnavailable
+from sphcore.backends.engine import Engine
+from sphcore.backends.generate import cuda_source
+from sphcore.stages import ARGUMENTS, CHOICES, STAGES, covering_choices
 
 SIMULATOR = bool(numba.config.ENABLE_CUDASIM)
 BLOCK = 128          # threads per block for row kernels
@@ -97,276 +100,17 @@ def blocks(n: int, block: int = BLOCK) -> int:
     return max((n + block - 1) // block, 1)
 
 
-# -- physics kernels (one per stage and choice combination) ---------------------------------------
+# -- physics kernels: generated from the stage declarations (one per stage and choice combination) --
 
-@functools.cache
-def density_kernel(kernel, eos, periodic, continuity):
-    row = _device(rows.density_row)
-
-    @cuda.jit
-    def density(prm, n, x, v, m, nbr, counts, wall_kind, wall_data, wall_tables, dt_prev, commit, rho_c, rho, p,
-                fill):
-        i = cuda.grid(1)
-        if i < n:
-            row(kernel, eos, periodic, continuity, prm, i, x, v, m, nbr, counts, wall_kind, wall_data, wall_tables,
-                dt_prev, commit, rho_c, rho, p, fill)
-    return density
+def _generated_factories() -> dict:
+    """{stage name: make(*choices) -> kernel} from generate.cuda_source (executed here, in memory)."""
+    namespace = {"cuda": cuda, "numba": numba, "BLOCK": BLOCK, "_device": _device}
+    namespace.update({s.row.py_func.__name__: s.row for s in STAGES})
+    exec(compile(cuda_source(STAGES), "<sphcore generated CUDA kernels>", "exec"), namespace)  # noqa: S102
+    return {s.name: functools.cache(namespace[f"make_{s.name}"]) for s in STAGES}
 
 
-@functools.cache
-def diffusion_kernel(kernel, eos, periodic):
-    row = _device(rows.diffusion_row)
-
-    @cuda.jit
-    def diffusion(prm, n, x, m, rho, nbr, counts, drho):
-        i = cuda.grid(1)
-        if i < n:
-            row(kernel, eos, periodic, prm, i, x, m, rho, nbr, counts, drho)
-    return diffusion
-
-
-@functools.cache
-def density_update_kernel():
-    row = _device(rows.density_update_row)
-
-    @cuda.jit
-    def density_update(n, rho_c, drho, dt):
-        i = cuda.grid(1)
-        if i < n:
-            row(i, rho_c, drho, dt)
-    return density_update
-
-
-@functools.cache
-def acceleration_kernel(kernel, viscosity, periodic):
-    row = _device(rows.acceleration_row)
-
-    @cuda.jit
-    def acceleration(prm, n, x, v, m, rho, p, nbr, counts, wall_kind, wall_data, wall_tables, fill, a):
-        i = cuda.grid(1)
-        if i < n:
-            row(kernel, viscosity, periodic, prm, i, x, v, m, rho, p, nbr, counts, wall_kind, wall_data,
-                wall_tables, fill, a)
-    return acceleration
-
-
-@cuda.jit(device=True)
-def _block_sum(s_sum, t, total):
-    """total[0] += the sum of the block's integers s_sum (shared memory; integers: any order)."""
-    cuda.syncthreads()
-    s = BLOCK // 2
-    while s > 0:
-        if t < s:
-            s_sum[t] += s_sum[t + s]
-        cuda.syncthreads()
-        s //= 2
-    if t == 0:
-        cuda.atomic.add(total, 0, s_sum[0])
-
-
-@functools.cache
-def dfsph_factor_kernel(kernel, periodic):
-    row = _device(rows.dfsph_factor_row)
-    quantize = _device(quantized_offset)
-
-    @cuda.jit
-    def dfsph_factor(prm, n, x, m, rho, nbr, counts, wall_kind, wall_data, wall_tables, fill, p, wgrad, inv_d,
-                     lam_sum, total):
-        """Row i's set-up; total[0] += the block's sum of quantised density offsets."""
-        s_sum = cuda.shared.array(BLOCK, numba.int64)
-        t = cuda.threadIdx.x
-        i = cuda.grid(1)
-        s_sum[t] = 0
-        if i < n:
-            row(kernel, periodic, prm, i, x, m, rho, nbr, counts, wall_kind, wall_data, wall_tables, fill, p, wgrad,
-                inv_d, lam_sum)
-            s_sum[t] = quantize(rho[i], prm.rho0)
-        _block_sum(s_sum, t, total)
-    return dfsph_factor
-
-
-@functools.cache
-def dfsph_source_kernel(kernel, periodic, divergence):
-    row = _device(rows.dfsph_source_row)
-    quantize = _device(quantized_error)
-
-    @cuda.jit
-    def dfsph_source(prm, n, x, v, m, rho, nbr, counts, wgrad, inv_d, dt, share, rho_ref, lam_sum, lam, total):
-        """lambda of row i; total[0] += the block's sum of quantised errors (integers: any order)."""
-        s_err = cuda.shared.array(BLOCK, numba.int64)
-        t = cuda.threadIdx.x
-        i = cuda.grid(1)
-        s_err[t] = 0
-        if i < n:
-            s_err[t] = quantize(row(kernel, periodic, divergence, prm, i, x, v, m, rho, nbr, counts, wgrad, inv_d,
-                                    dt, share, rho_ref, lam_sum, lam))
-        _block_sum(s_err, t, total)
-    return dfsph_source
-
-
-@functools.cache
-def dfsph_update_kernel(kernel, periodic):
-    row = _device(rows.dfsph_update_row)
-
-    @cuda.jit
-    def dfsph_update(prm, n, x, m, lam, nbr, counts, wgrad, inv_dt, v, lam_sum):
-        i = cuda.grid(1)
-        if i < n:
-            row(kernel, periodic, prm, i, x, m, lam, nbr, counts, wgrad, inv_dt, v, lam_sum)
-    return dfsph_update
-
-
-@functools.cache
-def dfsph_kick_kernel():
-    row = _device(rows.dfsph_kick_row)
-
-    @cuda.jit
-    def dfsph_kick(n, v, a, dt, kappa, v_star, lam, lam_sum):
-        i = cuda.grid(1)
-        if i < n:
-            row(i, v, a, dt, kappa, v_star, lam, lam_sum)
-    return dfsph_kick
-
-
-@functools.cache
-def dfsph_finish_kernel():
-    row = _device(rows.dfsph_finish_row)
-
-    @cuda.jit
-    def dfsph_finish(n, v, v_star, rho, lam_sum, inv_dt, store, a, p, kappa):
-        i = cuda.grid(1)
-        if i < n:
-            row(i, v, v_star, rho, lam_sum, inv_dt, store, a, p, kappa)
-    return dfsph_finish
-
-
-@functools.cache
-def surface_tension_kernel(kernel, periodic):
-    row = _device(rows.surface_tension_row)
-
-    @cuda.jit
-    def surface_tension(prm, n, x, m, rho, nbr, counts, a):
-        i = cuda.grid(1)
-        if i < n:
-            row(kernel, periodic, prm, i, x, m, rho, nbr, counts, a)
-    return surface_tension
-
-
-@functools.cache
-def vorticity_kernel(kernel, periodic):
-    row = _device(rows.vorticity_row)
-
-    @cuda.jit
-    def vorticity(prm, n, x, v, m, rho, nbr, counts, omega):
-        i = cuda.grid(1)
-        if i < n:
-            row(kernel, periodic, prm, i, x, v, m, rho, nbr, counts, omega)
-    return vorticity
-
-
-@functools.cache
-def confinement_kernel(kernel, periodic):
-    row = _device(rows.confinement_row)
-
-    @cuda.jit
-    def confinement(prm, n, x, m, rho, omega, nbr, counts, a):
-        i = cuda.grid(1)
-        if i < n:
-            row(kernel, periodic, prm, i, x, m, rho, omega, nbr, counts, a)
-    return confinement
-
-
-@functools.cache
-def xsph_kernel(kernel, periodic):
-    row = _device(rows.xsph_row)
-
-    @cuda.jit
-    def xsph(prm, n, x, v, m, rho, nbr, counts, dv):
-        i = cuda.grid(1)
-        if i < n:
-            row(kernel, periodic, prm, i, x, v, m, rho, nbr, counts, dv)
-    return xsph
-
-
-@functools.cache
-def shifting_kernel(kernel, periodic, add):
-    row = _device(rows.shifting_row)
-
-    @cuda.jit
-    def shifting(prm, n, x, v, m, rho, nbr, counts, wall_kind, wall_data, dv):
-        i = cuda.grid(1)
-        if i < n:
-            row(kernel, periodic, prm, i, x, v, m, rho, nbr, counts, wall_kind, wall_data, add, dv)
-    return shifting
-
-
-@functools.cache
-def integrate_kernel(integrator, use_drift):
-    row = _device(rows.integrate_row)
-
-    @cuda.jit
-    def integrate(n, x, v, a, dv, dt, dt_prev):
-        i = cuda.grid(1)
-        if i < n:
-            row(integrator, use_drift, i, x, v, a, dv, dt, dt_prev)
-    return integrate
-
-
-@functools.cache
-def boundaries_kernel(periodic):
-    row = _device(rows.boundaries_row)
-
-    @cuda.jit
-    def boundaries(prm, n, x, v, lo, wall_kind, wall_data, leaked, leak_count):
-        i = cuda.grid(1)
-        if i < n:
-            row(periodic, prm, i, x, v, lo, wall_kind, wall_data, leaked)
-            if leaked[i]:
-                cuda.atomic.add(leak_count, 0, 1)  # rare: only particles found behind a wall
-    return boundaries
-
-
-@functools.cache
-def statistics_kernel():
-    row = _device(rows.statistics_row)
-
-    @cuda.jit
-    def statistics(n, x, v, a, rho, rho0, out):
-        """out[0:3] = max(out, block max of |v|^2, |a|^2, compression); out[3] += NaN/Inf rows."""
-        sv = cuda.shared.array(BLOCK, numba.float64)
-        sa = cuda.shared.array(BLOCK, numba.float64)
-        sd = cuda.shared.array(BLOCK, numba.float64)
-        sb = cuda.shared.array(BLOCK, numba.float64)
-        t = cuda.threadIdx.x
-        i = cuda.grid(1)
-        sv[t] = 0.0
-        sa[t] = 0.0
-        sd[t] = 0.0
-        sb[t] = 0.0
-        if i < n:
-            v2, a2, r, finite = row(i, x, v, a, rho, rho0)
-            if finite:
-                sv[t] = v2
-                sa[t] = a2
-                sd[t] = max(r, 0.0)
-            else:
-                sb[t] = 1.0
-        cuda.syncthreads()
-        s = BLOCK // 2
-        while s > 0:
-            if t < s:
-                sv[t] = max(sv[t], sv[t + s])
-                sa[t] = max(sa[t], sa[t + s])
-                sd[t] = max(sd[t], sd[t + s])
-                sb[t] += sb[t + s]
-            cuda.syncthreads()
-            s //= 2
-        if t == 0:
-            cuda.atomic.max(out, 0, sv[0])
-            cuda.atomic.max(out, 1, sa[0])
-            cuda.atomic.max(out, 2, sd[0])
-            cuda.atomic.add(out, 3, sb[0])
-    return statistics
+KERNELS = _generated_factories()
 
 
 # -- binning kernels -------------------------------------------------------------------------------
@@ -619,8 +363,8 @@ class DeviceGrid:
         return self.build_neighbours(d.x, d.n_owned)
 
 
-FIELDS = ("id", "x", "v", "m", "a", "rho", "p")
-SORTED = ("id", "x", "v", "m")  # reordered by the grid; the rest is recomputed every step
+FIELDS = state_fields.FIELDS    # every named per-particle field (state.py)
+SORTED = state_fields.CARRIED   # reordered by the grid (with the extras); the rest is recomputed every step
 
 
 class DeviceState:
@@ -683,27 +427,28 @@ class DeviceState:
         raise AttributeError(name)
 
 
-class CudaStages:
+class CudaStages(Engine):
     """The stages of ``Simulation.stages`` on the device. The particle arrays live here for the
     whole run; the simulation's host ``state`` is a mirror, downloaded only when something on the
     host reads it (outputs, frames, a peer's halo) and uploaded again when the host replaced it."""
 
     def __init__(self, sim):
-        self.sim = sim
         self.dtype = sim.dtype
         self.d = DeviceState(sim.dtype)
         self.grid = DeviceGrid(sim.host_grid)
         w = sim.walls
-        self.wall_kind = cuda.to_device(np.ascontiguousarray(w.kind))
-        self.wall_data = cuda.to_device(np.ascontiguousarray(w.data))
-        self.wall_tables = cuda.to_device(np.ascontiguousarray(w.tables))
-        self.lo = cuda.to_device(sim._lo)
-        self.leak_count = cuda.device_array(1, dtype=np.int64)
-        self.stats = cuda.device_array(4, dtype=np.float64)
-        self.error_sum = cuda.device_array(1, dtype=np.int64)
-        self.scratch_n = -1
+        self.walls = {"wall_kind": cuda.to_device(np.ascontiguousarray(w.kind)),
+                      "wall_data": cuda.to_device(np.ascontiguousarray(w.data)),
+                      "wall_tables": cuda.to_device(np.ascontiguousarray(w.tables)),
+                      "lo": cuda.to_device(sim.model.lo)}
+        self.out_max = cuda.device_array(4, dtype=np.float64)  # a stage's "max" reductions
+        self.out_sum = cuda.device_array(4, dtype=np.int64)    # a stage's "sum" reductions
         self.device_stale = True   # the host state was replaced: upload before the next stage
         self.host_stale = False    # the device ran a stage since the last download
+        super().__init__(sim)
+
+    def allocate(self, shape, initial):
+        return cuda.to_device(np.full(shape, initial, dtype=self.dtype))
 
     # -- host <-> device ---------------------------------------------------------------------------
     def pull(self, state):
@@ -716,252 +461,138 @@ class CudaStages:
         if self.device_stale:
             state = self.sim._state
             self.d.upload(state)
-            self._scratch(state.n)
             self.device_stale = False
+        self.scratch.resize(self.d.n)
 
     def to_device(self, names):
         """Upload host arrays changed in place (ghost rows of rho, p after exchange 2)."""
         self.d.upload(self.sim._state, names)
 
-    def _array(self, name):
-        return self.d.v if name == "v" else getattr(self, "d_" + name)
-
     def fetch(self, name):
         """A host copy of a per-row array (omega, lam, v, v_star) for a halo exchange."""
-        return self._array(name).copy_to_host()
+        self.push_if_needed()
+        return self.array(name).copy_to_host()
 
     def store(self, name, host):
-        self._array(name).copy_to_device(host)
+        self.array(name).copy_to_device(host)
 
-    def _scratch(self, n):
-        if n == self.scratch_n:
-            return
-        dt = self.dtype
-        sim = self.sim
-        self.d_xsph_dv = cuda.device_array((n if sim.use_drift else 1, 3), dtype=dt)
-        self.d_omega = cuda.device_array((n if sim.use_vorticity else 1, 3), dtype=dt)
-        self.d_leaked = cuda.device_array(max(n, 1), dtype=np.int8)
-        self.d_fill = cuda.device_array(max(n, 1), dtype=dt)
-        self.d_drho = cuda.device_array(max(n, 1) if sim.continuity else 1, dtype=dt)  # D rho / Dt
-        m = max(n, 1) if sim.dfsph else 1  # DFSPH scratch (Simulation._resize_scratch)
-        self.d_wgrad = cuda.device_array((m, 3), dtype=dt)
-        self.d_inv_d = cuda.device_array(m, dtype=dt)
-        self.d_lam = cuda.device_array(m, dtype=dt)
-        self.d_lam_sum = cuda.device_array(m, dtype=dt)
-        self.d_v_star = cuda.device_array((m, 3), dtype=dt)
-        self.scratch_n = n
-
-    def _begin(self):
+    def begin(self):
         self.push_if_needed()
         self.host_stale = True
 
-    # -- stages ------------------------------------------------------------------------------------
+    def n_owned(self):
+        return self.d.n_owned
+
+    def array(self, name):
+        d = self.d
+        if name in FIELDS or name == "kappa":
+            return d.arrays[name]
+        if name == "rho_c":  # the carried density; unused (a placeholder row) with summation density
+            return d.arrays["density"] if self.model.continuity else self.scratch.drho
+        if name in self.scratch.arrays:
+            return self.scratch.arrays[name]
+        if name == "nbr":
+            return self.grid.d_nbr
+        if name == "counts":
+            return self.grid.d_counts
+        return self.walls[name]
+
+    def launch(self, stage, choices, n, arguments):
+        """One thread per owned row; the stage's reductions come back as numbers."""
+        maxes, sums = stage.reduce.count("max"), stage.reduce.count("sum")
+        outs = []
+        if maxes:
+            self.out_max.copy_to_device(np.zeros(4))
+            outs.append(self.out_max)
+        if sums:
+            self.out_sum.copy_to_device(np.zeros(4, dtype=np.int64))
+            outs.append(self.out_sum)
+        if n:
+            KERNELS[stage.name](*choices)[blocks(n), BLOCK](n, *arguments, *outs)
+        if not stage.reduce:
+            cuda.synchronize()
+            return None
+        got_max = self.out_max.copy_to_host() if maxes else ()
+        got_sum = self.out_sum.copy_to_host() if sums else ()
+        values, k_max, k_sum = [], 0, 0
+        for kind in stage.reduce:
+            if kind == "max":
+                values.append(float(got_max[k_max]))
+                k_max += 1
+            else:
+                values.append(int(got_sum[k_sum]))
+                k_sum += 1
+        return values[0] if len(values) == 1 else tuple(values)
+
     def bin(self):
-        self._begin()
+        self.begin()
         most = self.grid.bin(self.d)
         cuda.synchronize()
         return most
 
-    def density(self, prm, commit=True):
-        self._begin()
-        sim, d, g = self.sim, self.d, self.grid
-        n = d.n_owned
-        if n:
-            rho_c = d.arrays["density"] if sim.continuity else self.d_drho
-            density_kernel(int(sim.kernel), int(sim.eos), sim.periodic, int(sim.continuity))[blocks(n), BLOCK](
-                prm, n, d.x, d.v, d.m, g.d_nbr, g.d_counts, self.wall_kind, self.wall_data, self.wall_tables,
-                sim.dtype.type(sim.dt_prev), bool(commit), rho_c, d.rho, d.p, self.d_fill)
-        cuda.synchronize()
 
-    def diffusion(self, prm):
-        self._begin()
-        sim, d, g = self.sim, self.d, self.grid
-        n = d.n_owned
-        if n:
-            diffusion_kernel(int(sim.kernel), int(sim.eos), sim.periodic)[blocks(n), BLOCK](
-                prm, n, d.x, d.m, d.rho, g.d_nbr, g.d_counts, self.d_drho)
-        cuda.synchronize()
-
-    def density_update(self, dt):
-        self._begin()
-        d = self.d
-        if d.n_owned:
-            density_update_kernel()[blocks(d.n_owned), BLOCK](d.n_owned, d.arrays["density"], self.d_drho, dt)
-        cuda.synchronize()
-
-    def forces(self, prm):
-        self._begin()
-        sim, d, g = self.sim, self.d, self.grid
-        n = d.n_owned
-        if n:
-            acceleration_kernel(int(sim.kernel), int(sim.viscosity), sim.periodic)[blocks(n), BLOCK](
-                prm, n, d.x, d.v, d.m, d.rho, d.p, g.d_nbr, g.d_counts, self.wall_kind, self.wall_data,
-                self.wall_tables, self.d_fill, d.a)
-        cuda.synchronize()
-
-    def dfsph_factor(self, prm):
-        self._begin()
-        sim, d, g = self.sim, self.d, self.grid
-        self.error_sum.copy_to_device(np.zeros(1, dtype=np.int64))
-        if d.n_owned:
-            dfsph_factor_kernel(int(sim.kernel), sim.periodic)[blocks(d.n_owned), BLOCK](
-                prm, d.n_owned, d.x, d.m, d.rho, g.d_nbr, g.d_counts, self.wall_kind, self.wall_data,
-                self.wall_tables, self.d_fill, d.p, self.d_wgrad, self.d_inv_d, self.d_lam_sum, self.error_sum)
-        return int(self.error_sum.copy_to_host()[0])
-
-    def dfsph_source(self, prm, divergence, dt, share, rho_ref):
-        self._begin()
-        sim, d, g = self.sim, self.d, self.grid
-        self.error_sum.copy_to_device(np.zeros(1, dtype=np.int64))
-        if d.n_owned:
-            dfsph_source_kernel(int(sim.kernel), sim.periodic, int(divergence))[blocks(d.n_owned), BLOCK](
-                prm, d.n_owned, d.x, d.v if divergence else self.d_v_star, d.m, d.rho, g.d_nbr, g.d_counts,
-                self.d_wgrad, self.d_inv_d, dt, share, rho_ref, self.d_lam_sum, self.d_lam, self.error_sum)
-        return int(self.error_sum.copy_to_host()[0])
-
-    def dfsph_update(self, prm, divergence, inv_dt):
-        self._begin()
-        sim, d, g = self.sim, self.d, self.grid
-        if d.n_owned:
-            dfsph_update_kernel(int(sim.kernel), sim.periodic)[blocks(d.n_owned), BLOCK](
-                prm, d.n_owned, d.x, d.m, self.d_lam, g.d_nbr, g.d_counts, self.d_wgrad, inv_dt,
-                d.v if divergence else self.d_v_star, self.d_lam_sum)
-        cuda.synchronize()
-
-    def dfsph_kick(self, dt):
-        self._begin()
-        d = self.d
-        if d.n_owned:
-            dfsph_kick_kernel()[blocks(d.n_owned), BLOCK](d.n_owned, d.v, d.a, dt, d.kappa, self.d_v_star,
-                                                          self.d_lam, self.d_lam_sum)
-        cuda.synchronize()
-
-    def dfsph_finish(self, inv_dt, store):
-        self._begin()
-        d = self.d
-        if d.n_owned:
-            dfsph_finish_kernel()[blocks(d.n_owned), BLOCK](d.n_owned, d.v, self.d_v_star, d.rho, self.d_lam_sum,
-                                                            inv_dt, bool(store), d.a, d.p, d.kappa)
-        cuda.synchronize()
-
-    def surface_tension(self, prm):
-        self._begin()
-        sim, d, g = self.sim, self.d, self.grid
-        if d.n_owned:
-            surface_tension_kernel(int(sim.kernel), sim.periodic)[blocks(d.n_owned), BLOCK](
-                prm, d.n_owned, d.x, d.m, d.rho, g.d_nbr, g.d_counts, d.a)
-        cuda.synchronize()
-
-    def vorticity(self, prm):
-        self._begin()
-        sim, d, g = self.sim, self.d, self.grid
-        if d.n_owned:
-            vorticity_kernel(int(sim.kernel), sim.periodic)[blocks(d.n_owned), BLOCK](
-                prm, d.n_owned, d.x, d.v, d.m, d.rho, g.d_nbr, g.d_counts, self.d_omega)
-        cuda.synchronize()
-
-    def confinement(self, prm):
-        self._begin()
-        sim, d, g = self.sim, self.d, self.grid
-        if d.n_owned:
-            confinement_kernel(int(sim.kernel), sim.periodic)[blocks(d.n_owned), BLOCK](
-                prm, d.n_owned, d.x, d.m, d.rho, self.d_omega, g.d_nbr, g.d_counts, d.a)
-        cuda.synchronize()
-
-    def xsph(self, prm):
-        self._begin()
-        sim, d, g = self.sim, self.d, self.grid
-        if d.n_owned:
-            xsph_kernel(int(sim.kernel), sim.periodic)[blocks(d.n_owned), BLOCK](
-                prm, d.n_owned, d.x, d.v, d.m, d.rho, g.d_nbr, g.d_counts, self.d_xsph_dv)
-        cuda.synchronize()
-
-    def shifting(self, prm):
-        self._begin()
-        sim, d, g = self.sim, self.d, self.grid
-        if d.n_owned:
-            shifting_kernel(int(sim.kernel), sim.periodic, int(sim.use_xsph))[blocks(d.n_owned), BLOCK](
-                prm, d.n_owned, d.x, d.v, d.m, d.rho, g.d_nbr, g.d_counts, self.wall_kind, self.wall_data,
-                self.d_xsph_dv)
-        cuda.synchronize()
-
-    def statistics(self):
-        """(max |v|^2, max |a|^2, max compression, NaN/Inf rows) of the owned rows."""
-        self._begin()
-        d = self.d
-        self.stats.copy_to_device(np.zeros(4))
-        if d.n_owned:
-            statistics_kernel()[blocks(d.n_owned), BLOCK](d.n_owned, d.x, d.v, d.a, d.rho,
-                                                           self.sim.prm.rho0, self.stats)
-        s = self.stats.copy_to_host()
-        return float(s[0]), float(s[1]), float(s[2]), int(s[3])
-
-    def integrate(self, prm, dt, dt_prev):
-        """Advance v, x; periodic wrap and wall guard; returns the number of leaked particles."""
-        self._begin()
-        sim, d = self.sim, self.d
-        n = d.n_owned
-        self.leak_count.copy_to_device(np.zeros(1, dtype=np.int64))
-        if n:
-            integrate_kernel(int(sim.integrator), int(sim.use_drift))[blocks(n), BLOCK](
-                n, d.x, d.v, d.a, self.d_xsph_dv, dt, dt_prev)
-            boundaries_kernel(sim.periodic)[blocks(n), BLOCK](
-                prm, n, d.x, d.v, self.lo, self.wall_kind, self.wall_data, self.d_leaked, self.leak_count)
-        return int(self.leak_count.copy_to_host()[0])
-
-
-def compile_all(kernel=0, eos=0, viscosity=1, periodic=0, integrator=0, dtype="f32", cc=(9, 0)):
-    """Compile every kernel of one choice combination to PTX for compute capability ``cc`` without
-    running it (needs NVVM, not a GPU): proves the shared row functions are valid CUDA. Returns
-    {kernel name: PTX text}."""
+def argument_types(dtype: str) -> dict:
+    """The numba type of every stage argument (stages.ARGUMENTS and stages.SCRATCH) in precision
+    ``dtype``: the PTX signatures are generated from the declarations."""
     from numba import types
     from sphcore.params import make_params
+    from sphcore.stages import SCRATCH
 
     f = types.float32 if dtype == "f32" else types.float64
-    nptype = np.float32 if dtype == "f32" else np.float64
-    prm = make_params(nptype, H=1.0, h=0.5, s_w=1.0, s_g=1.0, s_l=1.0, w0=1.0, rho0=1000.0, c0=10.0,
-                      clamp_negative=True, alpha=0.1, mu=0.0, gravity=(0.0, -9.81, 0.0), external=(0.0, 0.0, 0.0),
-                      central_omega2=1.0, central=(0.0, 0.0, 0.0),
-                      period=(0.0, 0.0, 0.0), xsph_eps=0.0, shift_a=1.0, sigma=0.0, st_threshold=0.0, vorticity_eps=0.0,
-                      restitution=0.0, friction=0.0, wall_gap=0.0, dx=0.5, inv_s=1.0, dim3=True, wall_table_end=1.0,
-                      dfsph_d0=1.0, dfsph_omega=0.5, delta_hc0=1.0)
-    P = numba.typeof(prm)
-    v1, v2 = types.Array(f, 1, "C"), types.Array(f, 2, "C")
-    i1, i8, i8v = types.Array(types.int32, 1, "C"), types.Array(types.int8, 1, "C"), types.Array(types.int64, 1, "C")
-    nbr = types.Array(types.int32, 2, "F")
-    wk, wd = types.Array(types.int32, 1, "C"), types.Array(f, 2, "C")
+    prm = make_params(np.float32 if dtype == "f32" else np.float64, H=1.0, h=0.5, s_w=1.0, s_g=1.0, s_l=1.0, w0=1.0,
+                      rho0=1000.0, c0=10.0, clamp_negative=True, alpha=0.1, mu=0.0, gravity=(0.0, -9.81, 0.0),
+                      external=(0.0, 0.0, 0.0), central_omega2=1.0, central=(0.0, 0.0, 0.0), period=(0.0, 0.0, 0.0),
+                      xsph_eps=0.0, shift_a=1.0, sigma=0.0, st_threshold=0.0, vorticity_eps=0.0, restitution=0.0,
+                      friction=0.0, wall_gap=0.0, dx=0.5, inv_s=1.0, dim3=True, wall_table_end=1.0, dfsph_d0=1.0,
+                      dfsph_omega=0.5, delta_hc0=1.0)
+    by_kind = {"params": numba.typeof(prm), "float": f, "bool": types.boolean, "vec": types.Array(f, 2, "C"),
+               "row": types.Array(f, 1, "C"), "nbr": types.Array(types.int32, 2, "F"),
+               "counts": types.Array(types.int32, 1, "C"), "kinds": types.Array(types.int32, 1, "C"),
+               "table": types.Array(f, 2, "C")}
+    out = {name: by_kind[kind] for name, (kind, _) in ARGUMENTS.items()}
+    out.update({s.name: by_kind["row" if s.components == 1 else "vec"] for s in SCRATCH})
+    out["n"] = types.int64
+    out["out_max"] = types.Array(types.float64, 1, "C")
+    out["out_sum"] = types.Array(types.int64, 1, "C")
+    return out
+
+
+def stage_signature(stage, dtype: str) -> tuple:
+    """The argument types of ``stage``'s generated kernel (n, its arguments, its reduction outputs)."""
+    t = argument_types(dtype)
+    outs = (("out_max",) if "max" in stage.reduce else ()) + (("out_sum",) if "sum" in stage.reduce else ())
+    return tuple(t[a] for a in ("n", *stage.arguments, *outs))
+
+
+def compile_all(dtype="f32", cc=(9, 0), stages=None, combinations=covering_choices):
+    """Compile the kernels of ``stages`` (default: all) for every choice combination that
+    ``combinations(stage)`` lists (default: stages.covering_choices, every value of every choice),
+    and the binning kernels, to PTX for compute capability ``cc`` without running them (needs NVVM,
+    not a GPU): proves the shared row functions are valid CUDA. Returns {kernel label: PTX text}."""
+    from numba import types
+
+    t = argument_types(dtype)
+    f, v1, v2, nbr = t["dt"], t["rho"], t["x"], t["nbr"]
+    i1, i8v = t["counts"], types.Array(types.int64, 1, "C")
     n = types.int64
+    sigs = {}
+    for stage in (STAGES if stages is None else stages):
+        signature = stage_signature(stage, dtype)
+        for combo in combinations(stage):
+            label = stage.name + "".join(f" {c}={v}" for c, v in combo.items())
+            sigs[label] = (KERNELS[stage.name](*(combo[c] for c in stage.choices)), signature)
     cell_keys, scatter, sort_bins, cell_ranges = _binning_kernels()
-    sigs = {
-        "density": (density_kernel(kernel, eos, periodic, 1),
-                    (P, n, v2, v2, v1, nbr, i1, wk, wd, wd, f, types.boolean, v1, v1, v1, v1)),
-        "diffusion": (diffusion_kernel(kernel, eos, periodic), (P, n, v2, v1, v1, nbr, i1, v1)),
-        "density_update": (density_update_kernel(), (n, v1, v1, f)),
-        "acceleration": (acceleration_kernel(kernel, viscosity, periodic),
-                         (P, n, v2, v2, v1, v1, v1, nbr, i1, wk, wd, wd, v1, v2)),
-        "surface_tension": (surface_tension_kernel(kernel, periodic), (P, n, v2, v1, v1, nbr, i1, v2)),
-        "vorticity": (vorticity_kernel(kernel, periodic), (P, n, v2, v2, v1, v1, nbr, i1, v2)),
-        "confinement": (confinement_kernel(kernel, periodic), (P, n, v2, v1, v1, v2, nbr, i1, v2)),
-        "xsph": (xsph_kernel(kernel, periodic), (P, n, v2, v2, v1, v1, nbr, i1, v2)),
-        "shifting": (shifting_kernel(kernel, periodic, 1), (P, n, v2, v2, v1, v1, nbr, i1, wk, wd, v2)),
-        "integrate": (integrate_kernel(integrator, 1), (n, v2, v2, v2, v2, f, f)),
-        "dfsph_factor": (dfsph_factor_kernel(kernel, periodic),
-                         (P, n, v2, v1, v1, nbr, i1, wk, wd, wd, v1, v1, v2, v1, v1, i8v)),
-        "dfsph_source": (dfsph_source_kernel(kernel, periodic, 0),
-                         (P, n, v2, v2, v1, v1, nbr, i1, v2, v1, f, f, f, v1, v1, i8v)),
-        "dfsph_update": (dfsph_update_kernel(kernel, periodic), (P, n, v2, v1, v1, nbr, i1, v2, f, v2, v1)),
-        "dfsph_kick": (dfsph_kick_kernel(), (n, v2, v2, f, v1, v2, v1, v1)),
-        "dfsph_finish": (dfsph_finish_kernel(), (n, v2, v2, v1, v1, f, types.boolean, v2, v1, v1)),
-        "boundaries": (boundaries_kernel(periodic), (P, n, v2, v2, v1, wk, wd, i8, i8v)),
-        "statistics": (statistics_kernel(), (n, v2, v2, v2, v1, f, types.Array(types.float64, 1, "C"))),
+    for periodic in CHOICES["periodic"][0]:
+        sigs[f"neighbours periodic={periodic}"] = (
+            _neighbour_kernel(periodic), (n, v2, types.boolean, i8v, i8v, v1, v1, v1, i8v, v1, f, nbr, i1))
+    sigs.update({
         "cell_keys": (cell_keys, (v2, n, n, v1, v1, i8v, i8v, i8v)),
         "scatter": (scatter, (i8v, n, i8v, i8v)),
         "sort_bins": (sort_bins, (n, i8v, i8v, i8v)),
         "cell_ranges": (cell_ranges, (n, i8v, i8v, i8v, i8v)),
-        "neighbours": (_neighbour_kernel(periodic), (n, v2, types.boolean, i8v, i8v, v1, v1, v1, i8v, v1, f, nbr, i1)),
         "max_int": (_max_int, (i1, n, i1)),
         "scan_chunks": (_scan_chunks, (i8v, n, n, i8v)),
-    }
+    })
     # Device functions called from a kernel (the non-inlined wall functions) are compiled for the
     # current device's compute capability; without a GPU there is none, so answer ``cc`` for it.
     import types as pytypes

@@ -25,7 +25,7 @@ pair's mean density keeps rho^H_ji antisymmetric (mass is conserved). Only gravi
 rest balances).
 
 Walls: the analytic wall's share of the density, rho0 Phi(d_i) theta_i (walls.py), changes as the
-particle moves, rho0 grad Phi . v_i: the same wall gradient g^wall as DFSPH's (rows.dfsph_factor_row).
+particle moves, rho0 grad Phi . v_i: the same wall gradient g^wall as DFSPH's (dfsph.dfsph_factor_row).
 No density diffuses through a wall.
 
 rho is carried with the particle (``state.extra["density"]``): sorted with the grid, migrated,
@@ -44,6 +44,9 @@ computed after the ghosts' densities arrive and added with the step's dt (``diff
 ``density_update_row``).
 """
 from numba import njit
+from sphcore.physics.eos import sound_speed_sq
+from sphcore.physics.kernels import dw_dr_over_r
+from sphcore.physics.pairs import neighbour
 
 
 @njit(cache=True, inline="always")
@@ -63,3 +66,27 @@ def diffusion_pair(m_j, rho_i, rho_j, hydrostatic_ji, dw_over_r):
     """Neighbour j's share of the delta term without its factor delta h c0:
     psi_ij . grad W_ij m_j / rho_j = -2 (rho_ji - rho^H_ji) dW/dr / r m_j / rho_j (x_ji . x_ij = -r^2)."""
     return -2.0 * (rho_j - rho_i - hydrostatic_ji) * dw_over_r * m_j / rho_j
+
+
+@njit(cache=True, inline="always")
+def diffusion_row(kernel, eos, periodic, prm, i, x, m, rho, nbr, counts, drho):
+    """drho_i = the delta-SPH density diffusion with its hydrostatic correction.   (continuity.py)"""
+    rho_i = rho[i]
+    diff = 0.0 * rho_i
+    for k in range(counts[i]):
+        j, dx, dy, dz, r2, r_ij = neighbour(periodic, x, nbr, i, k, prm)
+        if r2 == 0.0:
+            continue
+        g = dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
+        # (dx, dy, dz) = x_i - x_j; the pair's mean density sets the hydrostatic step (symmetric in i, j)
+        rho_m = 0.5 * (rho_i + rho[j])
+        hydro = hydrostatic_difference(rho_m, sound_speed_sq(eos, rho_m, prm.rho0, prm.c0),
+                                       prm.gravity_x, prm.gravity_y, prm.gravity_z, -dx, -dy, -dz)
+        diff += diffusion_pair(m[j], rho_i, rho[j], hydro, g)
+    drho[i] = prm.delta_hc0 * diff
+
+
+@njit(cache=True, inline="always")
+def density_update_row(i, rho_c, drho, dt):
+    """rho_i += dt drho_i (the carried density; continuity.py)."""
+    rho_c[i] += dt * drho[i]

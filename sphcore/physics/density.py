@@ -9,9 +9,51 @@ kernel support instead of a density deficit.
 from numba import njit
 
 from sphcore.physics.kernels import w
+from sphcore.physics.continuity import density_rate_pair
+from sphcore.physics.eos import pressure
+from sphcore.physics.kernels import dw_dr_over_r
+from sphcore.physics.pairs import neighbour
+from sphcore.physics.walls import fill_fraction, wall_density_gradient, wall_terms
 
 
 @njit(cache=True, inline="always")
 def density_pair(kernel, m_j, r_ij, H, s_w):
     """Contribution m_j W(r_ij) of neighbour j to rho_i."""
     return m_j * w(kernel, r_ij, H, s_w)
+
+
+@njit(cache=True, inline="always")
+def density_row(kernel, eos, periodic, continuity, prm, i, x, v, m, nbr, counts, wall_kind, wall_data, wall_tables,
+                dt_prev, commit, rho_c, rho, p, fill):
+    """rho_i = m_i W(0) + sum_j m_j W_ij + theta_i rho0 Phi(d_i);  p_i = EOS(rho_i); fill_i = theta_i.
+    With ``continuity``: rho_i = rho_c[i] + dt_prev D rho_i/Dt, the carried density advanced by the
+    continuity equation over the previous step with the velocities that moved the particles here
+    (stored back if ``commit``; a carried 0 starts at rho0). (density.py, continuity.py, eos.py, walls.py)"""
+    rho_i = m[i] * prm.w0
+    rate = 0.0 * rho_i
+    for k in range(counts[i]):
+        j, dx, dy, dz, r2, r_ij = neighbour(periodic, x, nbr, i, k, prm)
+        rho_i += density_pair(kernel, m[j], r_ij, prm.H, prm.s_w)
+        if continuity and r2 > 0.0:
+            g = dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
+            rate += density_rate_pair(m[j], v[i, 0] - v[j, 0], v[i, 1] - v[j, 1], v[i, 2] - v[j, 2],
+                                      g * dx, g * dy, g * dz)
+    drho, _, _, _ = wall_terms(kernel, prm, False, wall_kind, wall_data, wall_tables, x[i, 0], x[i, 1], x[i, 2],
+                               0.0 * rho_i, rho_i, 0.0 * rho_i, 0.0 * rho_i, 0.0 * rho_i)
+    theta = fill_fraction(rho_i, drho, prm.rho0)
+    fill[i] = theta
+    rho_i += theta * drho
+    if continuity:
+        if rho_c[i] <= 0.0:  # a new run: its lattice is at rest density (continuity.py)
+            rho_c[i] = prm.rho0
+            rho_i = rho_c[i]
+        else:
+            # the wall's share theta rho0 Phi(d) changes at its gradient . v_i
+            r = rho_c[i]
+            wx, wy, wz = wall_density_gradient(kernel, prm, wall_kind, wall_data, wall_tables, x, i, r, theta)
+            rate += wx * v[i, 0] + wy * v[i, 1] + wz * v[i, 2]
+            rho_i = r + dt_prev * rate
+            if commit:
+                rho_c[i] = rho_i
+    rho[i] = rho_i
+    p[i] = pressure(eos, rho_i, prm.rho0, prm.c0, prm.clamp_negative)

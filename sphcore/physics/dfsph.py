@@ -47,6 +47,10 @@ in the cycle); non-pressure accelerations a_np; dt; v* = v + dt a_np; the densit
 x += dt v*. Time steps are limited by the flow speed, not by a speed of sound.
 """
 from numba import njit
+from sphcore.physics.continuity import density_rate_pair
+from sphcore.physics.kernels import dw_dr_over_r
+from sphcore.physics.pairs import neighbour
+from sphcore.physics.walls import wall_density_gradient
 
 # The solvers' convergence test sums |s_i| / rho0 over all particles of all peers. Each row's share is
 # counted in units of 2^-32 as an integer, so that the sum — and therefore the number of iterations —
@@ -146,3 +150,104 @@ def inverse_diagonal(gx, gy, gz, wx, wy, wz, sum_sq, d0):
     """1 / max(D_i, D_FLOOR d0) (module docstring); d0 is D of a full neighbourhood at rest."""
     d = (gx + wx) * (gx + wx) + (gy + wy) * (gy + wy) + (gz + wz) * (gz + wz) + sum_sq
     return 1.0 / max(d, D_FLOOR * d0)
+
+
+@njit(cache=True, inline="always")
+def dfsph_factor_row(kernel, periodic, prm, i, x, m, rho, nbr, counts, wall_kind, wall_data, wall_tables, fill, p,
+                     wgrad, inv_d, lam_sum):
+    """DFSPH set-up of row i at the step's positions: the wall gradient g_i^wall, 1 / D_i, and p_i = 0
+    (the forces stage then gives the non-pressure accelerations); returns rho_i / rho0 - 1 quantised
+    (dfsph.quantized_offset; summed over all rows: the mean density).   (dfsph.py)"""
+    gx = 0.0 * prm.H
+    gy = 0.0 * prm.H
+    gz = 0.0 * prm.H
+    sum_sq = 0.0 * prm.H
+    for k in range(counts[i]):
+        j, dx, dy, dz, r2, r_ij = neighbour(periodic, x, nbr, i, k, prm)
+        if r2 == 0.0:
+            continue
+        g = m[j] * dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
+        gx += g * dx
+        gy += g * dy
+        gz += g * dz
+        sum_sq += g * g * r2
+    rho_i = rho[i]
+    wx, wy, wz = wall_density_gradient(kernel, prm, wall_kind, wall_data, wall_tables, x, i, rho_i, fill[i])
+    wgrad[i, 0] = wx
+    wgrad[i, 1] = wy
+    wgrad[i, 2] = wz
+    inv_d[i] = inverse_diagonal(gx, gy, gz, wx, wy, wz, sum_sq, prm.dfsph_d0)
+    p[i] = 0.0 * rho_i
+    lam_sum[i] = 0.0 * rho_i  # the divergence solve starts from zero
+    return quantized_offset(rho_i, prm.rho0)
+
+
+@njit(cache=True, inline="always")
+def dfsph_source_row(kernel, periodic, divergence, prm, i, x, v, m, rho, nbr, counts, wgrad, inv_d, dt, share,
+                     rho_ref, lam_sum, lam):
+    """This iteration's lambda_i = s_i / D_i from the velocities v, projected so that the solve's sum
+    stays >= 0 with free surfaces (dfsph.py); returns the density error it removes, |lambda_i| D_i / rho0,
+    quantised (dfsph.quantized_error: an integer, so the sum over rows is the same in any order; 0 for a
+    particle without neighbours: nothing to solve there)."""
+    rate = wgrad[i, 0] * v[i, 0] + wgrad[i, 1] * v[i, 1] + wgrad[i, 2] * v[i, 2]
+    for k in range(counts[i]):
+        j, dx, dy, dz, r2, r_ij = neighbour(periodic, x, nbr, i, k, prm)
+        if r2 == 0.0:
+            continue
+        g = dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
+        rate += density_rate_pair(m[j], v[i, 0] - v[j, 0], v[i, 1] - v[j, 1], v[i, 2] - v[j, 2],
+                                  g * dx, g * dy, g * dz)
+    s = source(divergence, rho[i], rho_ref, rate, dt, share)
+    inv = inv_d[i]
+    if counts[i] == 0:  # alone: no neighbour to push, nothing to solve
+        lam[i] = 0.0 * s
+        return quantized_error(0.0 * s)
+    dl = increment(prm.clamp_negative, prm.dfsph_omega * s * inv, lam_sum[i])  # inv = 1 / max(D_i, d0)
+    lam[i] = dl
+    return quantized_error(abs(dl) / inv / prm.rho0)
+
+
+@njit(cache=True, inline="always")
+def dfsph_update_row(kernel, periodic, prm, i, x, m, lam, nbr, counts, wgrad, inv_dt, v, lam_sum):
+    """v_i -= (1/dt) [sum_j m_j (lambda_i + lambda_j) grad W_ij + lambda_i g_i^wall];
+    lam_sum_i += lambda_i.   (dfsph.py)"""
+    l_i = lam[i]
+    sx = l_i * wgrad[i, 0]
+    sy = l_i * wgrad[i, 1]
+    sz = l_i * wgrad[i, 2]
+    for k in range(counts[i]):
+        j, dx, dy, dz, r2, r_ij = neighbour(periodic, x, nbr, i, k, prm)
+        if r2 == 0.0:
+            continue
+        g = m[j] * (l_i + lam[j]) * dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
+        sx += g * dx
+        sy += g * dy
+        sz += g * dz
+    v[i, 0] -= inv_dt * sx
+    v[i, 1] -= inv_dt * sy
+    v[i, 2] -= inv_dt * sz
+    lam_sum[i] += l_i
+
+
+@njit(cache=True, inline="always")
+def dfsph_kick_row(i, v, a, dt, kappa, v_star, lam, lam_sum):
+    """v*_i = v_i + dt a_i (non-pressure accelerations); the density solve's warm start is the
+    previous step's pressure, lambda_i = kappa_i dt^2 (applied by one update before iterating)."""
+    for c in range(3):
+        v_star[i, c] = v[i, c] + dt * a[i, c]
+    lam[i] = kappa[i] * dt * dt
+    lam_sum[i] = 0.0 * dt
+
+
+@njit(cache=True, inline="always")
+def dfsph_finish_row(i, v, v_star, rho, lam_sum, inv_dt, store, a, p, kappa):
+    """a_i = (v*_i - v_i) / dt, so that the integrator's kick lands on v*; if ``store``: kappa_i =
+    sum lambda / dt^2 (the next step's warm start), p_i = rho_i^2 kappa_i. A step shortened to land on
+    an output time does not store: its lambda also removes the velocity field's residual divergence,
+    which does not shrink with dt, so sum lambda / dt^2 would be a meaningless, huge pressure."""
+    for c in range(3):
+        a[i, c] = (v_star[i, c] - v[i, c]) * inv_dt
+    if store:
+        k = lam_sum[i] * inv_dt * inv_dt
+        kappa[i] = k
+        p[i] = rho[i] * rho[i] * k

@@ -22,6 +22,10 @@ of disorder, and would push particles out of the fluid: in the free-surface laye
 pushes a particle towards a wall.
 """
 from numba import njit
+import math
+from sphcore.physics.kernels import dw_dr_over_r, w
+from sphcore.physics.pairs import neighbour
+from sphcore.physics.walls import signed_distance
 
 SURFACE_CONCENTRATION = 0.9  # C_i below this marks a particle of the free-surface layer
 
@@ -30,3 +34,43 @@ SURFACE_CONCENTRATION = 0.9  # C_i below this marks a particle of the free-surfa
 def concentration_gradient_pair(m_j, rho0, dw_over_r):
     """Scalar f so that the contribution of j to grad C_i is f * x_ij."""
     return m_j / rho0 * dw_over_r
+
+
+@njit(cache=True, inline="always")
+def shifting_row(kernel, periodic, add, prm, i, x, v, m, rho, nbr, counts, wall_kind, wall_data, dv):
+    """Particle shifting as a drift velocity, -A h |v_i| grad C_i, free-surface and wall-normal
+    components removed (shifting.py); added to dv if ``add`` (XSPH wrote it), else written."""
+    gx = 0.0 * prm.H
+    gy = 0.0 * prm.H
+    gz = 0.0 * prm.H
+    c = m[i] / prm.rho0 * prm.w0
+    for k in range(counts[i]):
+        j, dx, dy, dz, r2, r_ij = neighbour(periodic, x, nbr, i, k, prm)
+        c += m[j] / prm.rho0 * w(kernel, r_ij, prm.H, prm.s_w)
+        if r2 == 0.0:
+            continue
+        f = concentration_gradient_pair(m[j], prm.rho0, dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g))
+        gx += f * dx
+        gy += f * dy
+        gz += f * dz
+    if c < SURFACE_CONCENTRATION:  # free-surface layer: grad C is the surface's, not disorder's
+        gx = 0.0 * gx
+        gy = 0.0 * gy
+        gz = 0.0 * gz
+    for q in range(wall_kind.shape[0]):  # near a wall: no shift along its normal
+        d, nx, ny, nz = signed_distance(wall_kind[q], wall_data[q], x[i, 0], x[i, 1], x[i, 2])
+        if d < prm.H:
+            gn = gx * nx + gy * ny + gz * nz
+            gx -= gn * nx
+            gy -= gn * ny
+            gz -= gn * nz
+    speed = math.sqrt(v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1] + v[i, 2] * v[i, 2])
+    s = -prm.shift_a * prm.h * speed
+    if add:
+        dv[i, 0] += s * gx
+        dv[i, 1] += s * gy
+        dv[i, 2] += s * gz
+    else:
+        dv[i, 0] = s * gx
+        dv[i, 1] = s * gy
+        dv[i, 2] = s * gz

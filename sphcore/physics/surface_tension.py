@@ -11,6 +11,9 @@ by the scene) keeps the force off interior particles where n is noise. The gradi
 gradient kernel; the Laplacian uses the viscosity-kernel Laplacian, as Müller does for stability.
 """
 from numba import njit
+import math
+from sphcore.physics.kernels import dw_dr_over_r, lap_w_viscosity
+from sphcore.physics.pairs import neighbour
 
 
 @njit(cache=True, inline="always")
@@ -31,3 +34,26 @@ def surface_tension_factor(sigma, lap_c, n_norm, rho_i, threshold):
     if n_norm <= threshold:
         return 0.0 * sigma
     return -sigma * lap_c / (n_norm * rho_i)
+
+
+@njit(cache=True, inline="always")
+def surface_tension_row(kernel, periodic, prm, i, x, m, rho, nbr, counts, a):
+    """Colour-field surface tension, a_i += -sigma lap c_i n_i / (|n_i| rho_i).   (surface_tension.py)"""
+    gx = 0.0 * prm.H
+    gy = 0.0 * prm.H
+    gz = 0.0 * prm.H
+    lap_c = 0.0 * prm.H
+    for k in range(counts[i]):
+        j, dx, dy, dz, r2, r_ij = neighbour(periodic, x, nbr, i, k, prm)
+        if r2 == 0.0:
+            continue
+        f = colour_gradient_pair(m[j], rho[j], dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g))
+        gx += f * dx
+        gy += f * dy
+        gz += f * dz
+        lap_c += colour_laplacian_pair(m[j], rho[j], lap_w_viscosity(r_ij, prm.H, prm.s_l))
+    norm = math.sqrt(gx * gx + gy * gy + gz * gz)
+    s = surface_tension_factor(prm.sigma, lap_c, norm, rho[i], prm.st_threshold)
+    a[i, 0] += s * gx
+    a[i, 1] += s * gy
+    a[i, 2] += s * gz

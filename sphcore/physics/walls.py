@@ -310,3 +310,12 @@ def fill_fraction(rho_fluid, rho_wall, rho0):
     if rho_wall <= 0.0 or expected <= 0.0:
         return 1.0 + 0.0 * rho0
     return min(rho_fluid / expected, 1.0)
+
+
+@njit(cache=True, inline="always")
+def wall_density_gradient(kernel, prm, wall_kind, wall_data, wall_tables, x, i, rho_i, theta):
+    """g_i^wall = grad_i of the wall's density share theta rho0 Phi(d_i): the walls' pressure push at
+    p_i = rho_i^2 / 2 without body force is -sum_virtual m grad W = -g_i^wall / theta.   (walls.py)"""
+    _, fx, fy, fz = wall_terms(kernel, prm, True, wall_kind, wall_data, wall_tables, x[i, 0], x[i, 1], x[i, 2],
+                               0.5 * rho_i * rho_i, rho_i, 0.0 * rho_i, 0.0 * rho_i, 0.0 * rho_i)
+    return -theta * fx, -theta * fy, -theta * fz

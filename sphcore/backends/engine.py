@@ -1,0 +1,65 @@
+"""What both backends share: running a declared stage (``sphcore/stages.py``) on named arrays.
+
+``Engine.run(stage, **values)`` binds every argument the stage's row function names: first from
+``values`` (scalars the step passes: ``prm``, ``dt``...; choices made per call: ``divergence``), then
+from ``arrays`` renames (``arrays={"v": "v_star"}``: the density solve runs on v*), then from the
+backend's arrays by name (``array``): the particle state, its carried arrays, the scratch, the grid,
+the walls. Compile-time choices not given come from the simulation's ``choices``. A backend provides
+``array(name)``, ``allocate(shape, initial)`` and ``launch(stage, choices, n, arguments)``.
+"""
+from __future__ import annotations
+
+from sphcore import stages as stage_specs
+
+
+class Scratch:
+    """The per-row work arrays of ``stages.SCRATCH`` for the state's n rows (owned + ghosts), owned
+    by the backend; an array a model does not need has one row. Reallocated (to its initial value)
+    only when n changes."""
+
+    def __init__(self, needs: dict, allocate):
+        self.needs = needs          # Simulation flag -> bool (stages.Scratch.needed)
+        self.allocate = allocate    # (shape, initial) -> array on the backend's device
+        self.n = -1
+        self.arrays = {}
+
+    def resize(self, n: int):
+        if n == self.n:
+            return
+        for s in stage_specs.SCRATCH:
+            rows = max(n, 1) if (not s.needed or self.needs[s.needed]) else 1
+            self.arrays[s.name] = self.allocate((rows,) if s.components == 1 else (rows, s.components), s.initial)
+        self.n = n
+
+    def __getattr__(self, name):
+        arrays = self.__dict__.get("arrays", {})
+        if name in arrays:
+            return arrays[name]
+        raise AttributeError(name)
+
+
+class Engine:
+    """The stage runner over a Simulation's model (choices, walls) and the backend's arrays."""
+
+    def __init__(self, sim):
+        self.sim = sim
+        self.model = model = sim.model
+        self.scratch = Scratch({s.needed: bool(getattr(model, s.needed)) for s in stage_specs.SCRATCH if s.needed},
+                               self.allocate)
+
+    def run(self, stage, arrays=None, **values):
+        """Run ``stage`` over the owned rows; returns its reduced values (a number, a tuple, or None)."""
+        choices = self.model.choices
+        picked = tuple(int(values.pop(c)) if c in values else choices[c] for c in stage.choices)
+        self.begin()
+        arguments = []
+        for name in stage.arguments:  # values a stage does not take (a term's coefficient) are not passed
+            if name in values:
+                arguments.append(values[name])
+            else:
+                arguments.append(self.array(arrays.get(name, name) if arrays else name))
+        return self.launch(stage, picked, self.n_owned(), arguments)
+
+    def begin(self):
+        """Before a stage: the backend's arrays are current and the scratch fits the state."""
+        raise NotImplementedError

@@ -1,0 +1,68 @@
+"""The momentum equation of one particle: a_i = pressure + viscosity + body force + wall pressure.
+
+The pair terms and their papers are in pressure.py (symmetric pressure gradient, Monaghan 1992),
+viscosity.py (artificial, Muller, Morris), external.py (body forces) and walls.py (the analytic
+wall's pressure and no-slip drag); this file sums them over i's neighbours."""
+
+from numba import njit
+
+from sphcore.physics.external import body_acceleration, central_acceleration
+from sphcore.physics.kernels import dw_dr_over_r, lap_w_viscosity
+from sphcore.physics.pairs import neighbour
+from sphcore.physics.pressure import pressure_pair
+from sphcore.physics.viscosity import artificial_pair, morris_pair, muller_pair
+from sphcore.physics.walls import wall_terms, wall_viscosity
+
+
+@njit(cache=True, inline="always")
+def acceleration_row(kernel, viscosity, periodic, prm, i, x, v, m, rho, p, nbr, counts, wall_kind, wall_data,
+                     wall_tables, fill, a):
+    """a_i = pressure + viscosity + body force + wall pressure.   (pressure.py, viscosity.py,
+    external.py, walls.py)"""
+    bx, by, bz = body_acceleration(prm)
+    if prm.central_omega2 > 0.0:
+        cx, cy, cz = central_acceleration(prm, x[i, 0], x[i, 1], x[i, 2])
+        bx += cx
+        by += cy
+        bz += cz
+    ax = bx * 1.0
+    ay = by * 1.0
+    az = bz * 1.0
+    rho_i = rho[i]
+    p_i = p[i]
+    p_rho2_i = p_i / (rho_i * rho_i)
+    for k in range(counts[i]):
+        j, dx, dy, dz, r2, r_ij = neighbour(periodic, x, nbr, i, k, prm)
+        if r2 == 0.0:
+            continue  # coincident particles: no direction, no pressure force
+        dw_over_r = dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
+        f = pressure_pair(m[j], p_rho2_i, p[j], rho[j], dw_over_r)
+        if viscosity == 1:  # Viscosity.ARTIFICIAL
+            vdotx = ((v[i, 0] - v[j, 0]) * dx + (v[i, 1] - v[j, 1]) * dy + (v[i, 2] - v[j, 2]) * dz)
+            f += artificial_pair(m[j], vdotx, r2, rho_i, rho[j], dw_over_r, prm.alpha, prm.c0, prm.h)
+        ax += f * dx
+        ay += f * dy
+        az += f * dz
+        if viscosity == 2:  # Viscosity.MULLER: along v_j - v_i
+            g = muller_pair(m[j], rho_i, rho[j], lap_w_viscosity(r_ij, prm.H, prm.s_l), prm.mu)
+            ax += g * (v[j, 0] - v[i, 0])
+            ay += g * (v[j, 1] - v[i, 1])
+            az += g * (v[j, 2] - v[i, 2])
+        elif viscosity == 3:  # Viscosity.MORRIS: along v_i - v_j
+            g = morris_pair(m[j], r2, rho_i, rho[j], dw_over_r, prm.mu, prm.h)
+            ax += g * (v[i, 0] - v[j, 0])
+            ay += g * (v[i, 1] - v[j, 1])
+            az += g * (v[i, 2] - v[j, 2])
+    _, wx, wy, wz = wall_terms(kernel, prm, True, wall_kind, wall_data, wall_tables, x[i, 0], x[i, 1], x[i, 2],
+                               p_i, rho_i, bx, by, bz)
+    ax += fill[i] * wx
+    ay += fill[i] * wy
+    az += fill[i] * wz
+    if viscosity == 3:  # Viscosity.MORRIS: no-slip walls
+        kv = fill[i] * wall_viscosity(prm, wall_kind, wall_data, wall_tables, x[i, 0], x[i, 1], x[i, 2], rho_i)
+        ax += kv * v[i, 0]
+        ay += kv * v[i, 1]
+        az += kv * v[i, 2]
+    a[i, 0] = ax
+    a[i, 1] = ay
+    a[i, 2] = az
