@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import inspect
 from dataclasses import dataclass
+from functools import cached_property
 from types import MappingProxyType
 
 from sphcore.choices import EOS, Integrator, Kernel, Viscosity
@@ -128,16 +129,17 @@ class Stage:
     reduce: tuple = ()
     key: str = ""
 
-    @property
+    # read once from the row function (every stage call binds by them: inspect is slow)
+    @cached_property
     def parameters(self) -> tuple:
         return tuple(inspect.signature(self.row.py_func).parameters)
 
-    @property
+    @cached_property
     def choices(self) -> tuple:
         """The compile-time choices, in the row's order."""
         return tuple(p for p in self.parameters if p in CHOICES)
 
-    @property
+    @cached_property
     def arguments(self) -> tuple:
         """The row's arguments after the choices, without i."""
         return tuple(p for p in self.parameters if p not in CHOICES and p != "i")
