@@ -253,9 +253,9 @@ def settle_and_average(sim, t_end: float, clock=None, samples: int = 10, window:
                        on_sample=None):
     """Step ``sim`` to ``t_end`` and average each particle's position, pressure and density over
     ``samples`` evenly spaced refreshes in the last ``window`` seconds: a weakly compressible tank at
-    rest still carries acoustic noise (quick 3D tank: one sample's worst particle is 0.85-1.24 % of
-    rho0 g H off over the last 0.5 s, the averaged worst 0.93 %; scripts/hydrostatic_layers.py), and
-    the hydrostatic pressure is the steady part.
+    rest still carries acoustic noise (quick 3D tank: one sample's worst particle is 0.07-0.53 % of
+    rho0 g H off over the last 0.5 s, the averaged worst 0.10 %; docs/VALIDATION.md,
+    scripts/investigations/hydrostatic_layers.py), and the hydrostatic pressure is the steady part.
 
     ``on_sample(sim)`` is called after each refresh. Returns (times, kinetic energies of every step,
     (x (n, 3), p (n,), rho (n,)) in id order, mean height of the highest particle)."""
