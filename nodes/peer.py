@@ -51,7 +51,6 @@ def take_block(sim: Simulation, dec: Decomposition, rank: int):
     array (``state.extra``: DFSPH's kappa, the continuity density) filtered alike (``ParticleState.take``)."""
     s = sim.state
     sim.state = s.take(dec.owner(sim.grid.cells_of(s.x)) == rank)
-    sim._resize_scratch(sim.state.n)
 
 
 class PeerRecorder:

@@ -287,7 +287,6 @@ def restore(sim, ckpt: Checkpoint):
         key = EXTRA_PREFIX + name
         carried[key] = a[key] if key in a else np.zeros_like(values[:0], shape=(len(a["id"]),) + values.shape[1:])
     sim.state = ParticleState.from_carried(carried, sim.dtype)
-    sim._resize_scratch(sim.state.n)
     sim.step_index, sim.t, sim.dt, sim.dt_prev = int(m["step"]), float(m["t"]), float(m["dt"]), float(m["dt_prev"])
     sim.leaks, sim.max_neighbours = int(m["leaks"]), int(m["max_neighbours"])
     sim.max_compression, sim.last_limit = float(m["max_compression"]), m["last_limit"]

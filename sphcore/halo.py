@@ -235,7 +235,6 @@ class PeerHalo:
         new_state = _state_of(parts, sim.dtype)
         new_state.n_owned = new_state.n
         sim.state = new_state
-        sim._resize_scratch(new_state.n)
         self._set_decomposition(new)
         self.rebalances += 1
 
@@ -295,7 +294,6 @@ class PeerHalo:
         new = _state_of([owned] + ghosts, sim.dtype)
         new.n_owned = n_own
         sim.state = new
-        sim._resize_scratch(new.n)
 
     def exchange_fields(self, sim):
         s = sim.state

@@ -51,7 +51,7 @@ class Model:
     gradient_moment (boundaries.lattice_gradient_moment); walls; mass (kg per particle); host_grid,
     grid_lo (float64 origin), lo (origin in the run's dtype), periodic (0/1); nu (m^2/s, 0 without a
     physical viscosity); prm (params.Params); the flags dfsph, continuity, use_xsph, use_shifting,
-    use_drift, use_surface_tension, use_vorticity, use_diffusion; force_terms ((stage, scene value)
+    use_drift, use_vorticity, use_diffusion; force_terms ((stage, scene value)
     of stages.FORCE_TERMS that are on); extra_names (the arrays carried in state.extra)."""
 
     def __init__(self, scene: Scene, precision: str | None = None, backend: str = "cpu"):
@@ -102,7 +102,6 @@ class Model:
         self.use_xsph = terms.xsph > 0.0
         self.use_shifting = terms.shifting > 0.0
         self.use_drift = self.use_xsph or self.use_shifting  # the drift uses v + dv
-        self.use_surface_tension = terms.surface_tension > 0.0
         self.force_terms = tuple((term, scene_value(scene, term.key)) for term in st.FORCE_TERMS
                                  if scene_value(scene, term.key) > 0.0)
         self.use_vorticity = terms.vorticity_confinement > 0.0

@@ -17,7 +17,7 @@ from sphcore.backends import cpu
 from sphcore.choices import Integrator
 from sphcore.halo import NULL_HALO
 from sphcore.initial import generate_particles
-from sphcore.model import DTYPES, Model, scene_value  # noqa: F401 - DTYPES, scene_value: re-exported
+from sphcore.model import Model
 from sphcore.scene import Scene
 from sphcore.solvers import SOLVERS
 from sphcore.state import ParticleState
@@ -131,11 +131,6 @@ class Simulation:
     def grid_for(scene: Scene):
         """The global grid of ``scene`` without generating particles (to check a decomposition)."""
         return Model.grid_for(scene)
-
-    def _resize_scratch(self, n: int):
-        """Size the backend's per-row scratch (stages.SCRATCH) for n rows now; every stage also does
-        so itself when the state's row count changed."""
-        self.engine.scratch.resize(n)
 
     # -- stages --------------------------------------------------------------------------------
     def _ramped_params(self):
