@@ -212,6 +212,11 @@ def test_hostile_messages_are_dropped_and_counted_and_the_result_is_unchanged(tm
         attacker.replay(dest=0, step=step - 1)  # peer 0 already used it: a duplicate
         attacker.replay(dest=1, step=step - 1)  # peer 1 waits for step `step`'s resume: an old step
         acks["held"] = len(attacker.steps_seen) - seen
+        # The replays were sent last, on the same link, and are dropped on arrival: once each peer has
+        # logged its drop, every forged message before it is filed (else the resume could overtake them
+        # while peer 0 is still working through the 5000-message flood)
+        logs[0].wait_for("peer 0: dropped a message from 1 (duplicate)", timeout=60)
+        logs[1].wait_for("peer 1: dropped a message from 0 (old step)", timeout=60)
         acks["bad value"] = _control(capsys, endpoints[0], "attacked", "set", "sph.alpha=-1")
         acks["pause again"] = _control(capsys, endpoints[0], "attacked", "pause")
         acks["resume"] = _control(capsys, endpoints[0], "attacked", "resume")
