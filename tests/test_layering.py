@@ -167,3 +167,32 @@ def test_the_in_process_scheduler_names_a_deadlock_of_a_whole_run():
 
     with pytest.raises(DeadlockError, match="nobody sends"):
         _drive([waits_forever()], network=net)
+
+
+def test_the_numba_cache_hash_covers_every_file_compiled_code_can_see_and_no_other():
+    # The oracle: this file's ast import graph, from the sphcore modules that import numba
+    import sphcore
+    g, mods = graph(), modules()
+    numba_users = {name for name, path in mods.items() if name.startswith("sphcore")
+                   and any(m == "numba" or m.startswith("numba.") for m in _all_imports(path))}
+    seen, todo = set(), sorted(numba_users)
+    while todo:
+        name = todo.pop()
+        if name not in seen:
+            seen.add(name)
+            todo.extend(g[name])
+    assert {p.resolve() for p in sphcore.kernel_sources()} == {mods[n].resolve() for n in seen}
+    hashed = {p.name for p in sphcore.kernel_sources()}
+    assert {"walls.py", "grid.py", "stages.py", "generate.py", "cuda.py", "kernels.py"} <= hashed
+    # a scene or checkpoint edit must not throw away minutes of compiled kernels
+    assert not {"scene.py", "checkpoint.py", "halo.py", "solver.py"} & hashed
+
+
+def _all_imports(path):
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            out.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            out.add(node.module)
+    return out
