@@ -1,10 +1,12 @@
 """The ``sph`` command line.
 
     sph run CONFIG.toml [--peers N] [--precision f32|f64] [--steps S | --until T] [--out DIR] [--set section.key=value ...]
-    sph peer CONFIG.toml --rank R --world N --listen ENDPOINT [--connect ENDPOINT ...] --run-id ID
+    sph peer CONFIG.toml --rank R --world N --listen ENDPOINT [--zenoh ENDPOINT ...] --run-id ID
     sph viewer | control | render | validate | study | replay   (see sph COMMAND --help)
     sph bench [--sizes ...] [--precisions ...] [--threads ...] [--external] [--peers 1 2]
-    sph scene CONFIG.toml            print the fully resolved scene (after --set overrides)
+    sph scene CONFIG.toml [--full]   check a scene as sph run does; a summary (--full: resolved TOML)
+    sph control OUT_DIR COMMAND      pause, resume, set ... a running multi-peer run (OUT_DIR/run.json)
+    sph examples                     the shipped scenes, one line each
 
 Exit codes: 0 success, 2 bad input (scene, option or override; nothing is written), 3 the simulation
 became unphysical (the message names step, cause and particles), 4 a peer was lost or timed out
@@ -78,6 +80,30 @@ def _add_port_options(parser):
                         help="--serve-web / --spawn: the Rerun stream's port (default 9876, or a free one)")
 
 
+class _OldSpelling(argparse.Action):
+    """An option's former spelling: appends to the new option's list and says once, on stderr,
+    what to write instead."""
+
+    def __init__(self, option_strings, dest, new: str = "", **kwargs):
+        self.new = new
+        super().__init__(option_strings, dest, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        if not getattr(namespace, "_warned_" + self.dest, False):
+            print(f"{parser.prog}: {option_string} is deprecated here, use {self.new} (a Zenoh endpoint; in "
+                  f"sph run --connect is a Rerun viewer's URL)", file=sys.stderr)
+            setattr(namespace, "_warned_" + self.dest, True)
+        setattr(namespace, self.dest, list(getattr(namespace, self.dest) or []) + [values])
+
+
+def _add_zenoh_option(parser, help: str):
+    """--zenoh ENDPOINT (repeatable): where this process connects to the run's peers; the old
+    spelling --connect still works, with a deprecation message."""
+    parser.add_argument("--zenoh", action="append", default=[], metavar="ENDPOINT", help=help)
+    parser.add_argument("--connect", dest="zenoh", action=_OldSpelling, new="--zenoh", metavar="ENDPOINT",
+                        help=argparse.SUPPRESS)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="sph",
@@ -91,7 +117,7 @@ def build_parser() -> argparse.ArgumentParser:
         "run", help="run a scene (one process or N peers) and write summary.json, final.npz, scene.toml, run.rrd",
         description="Run a scene in one process or as N peer processes (--peers, --hosts). Writes OUT/summary.json (timings, counts, leaks), OUT/final.npz "
                     "(id, x, v, rho sorted by id) and OUT/scene.toml (the resolved scene) when the run ends.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    )
     run.add_argument("config", type=Path, nargs="?", default=None,
                      help="scene file (TOML), e.g. configs/dam_break.toml (not with --resume)")
     length = run.add_mutually_exclusive_group()
@@ -99,7 +125,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="number of steps (default: the scene's time.steps)")
     length.add_argument("--until", type=_positive_float, default=None, metavar="T",
                         help="run until simulated time T (s)")
-    run.add_argument("--out", type=Path, default=None, help="output folder (default: runs/<scene name>)")
+    run.add_argument("--out", type=Path, default=None,
+                     help="output folder, checked before the first step (default: runs/<scene name>)")
     run.add_argument("--precision", choices=("f32", "f64"), default=None,
                      help="floating point precision (default: the scene's run.precision; auto = f64 on the "
                           "CPU, f32 with --backend cuda)")
@@ -110,14 +137,15 @@ def build_parser() -> argparse.ArgumentParser:
                      help="numba threads per process (default: all cores, divided among the peers)")
     run.add_argument("--backend", choices=("cpu", "cuda"), default="cpu",
                      help="cpu: numba threads; cuda: the particles live on an NVIDIA GPU for the whole run "
-                          "(one GPU per peer: peer r uses GPU r modulo the GPUs visible; see --device)")
+                          "(one GPU per peer: peer r uses GPU r modulo the GPUs visible; see --device; default: cpu)")
     run.add_argument("--device", type=_positive_int, default=None, metavar="GPU",
                      help="--backend cuda with one peer: the GPU index to use (default 0)")
     run.add_argument("--peers", type=_positive_int, default=1,
                      help="number of peer processes on this machine, talking Zenoh over loopback; each owns one "
-                          "block of the domain ([decomposition] in the scene)")
+                          "block of the domain ([decomposition] in the scene; default: 1)")
     run.add_argument("--timeout", type=_positive_float, default=120.0,
-                     help="seconds a peer waits for a message before giving up (names the missing peer)")
+                     help="seconds a peer waits for a message before giving up (names the missing peer; "
+                          "default: 120)")
     run.add_argument("--vtk", type=_positive_int, default=None, metavar="K",
                      help="write ParaView files every K steps: OUT/particles.pvd (+ OUT/surface.pvd with "
                           "--set output.surface=true); same as --set output.vtk_every=K")
@@ -130,14 +158,17 @@ def build_parser() -> argparse.ArgumentParser:
                      help="with --peers N (N >= 2) or --hosts: when a peer dies or stops answering, stop the "
                           "others and restart the run, with the same peers, from the newest checkpoint "
                           "(--checkpoint-every; from the start if there is none yet), up to K times; the "
-                          "result is bitwise the uninterrupted run's, and summary.json lists the restarts")
+                          "result is bitwise the uninterrupted run's, and summary.json lists the restarts "
+                          "(default: 0)")
     run.add_argument("--hosts", type=Path, default=None, metavar="FILE",
                      help="run one peer per line of FILE ('HOST PORT [THREADS]') over ssh instead of on this "
                           "machine; see docs/USAGE.md")
-    run.add_argument("--ssh", default="ssh -o BatchMode=yes", help="--hosts: the ssh command")
+    run.add_argument("--ssh", default="ssh -o BatchMode=yes",
+                     help="--hosts: the ssh command (default: 'ssh -o BatchMode=yes')")
     run.add_argument("--remote-dir", default=None, help="--hosts: the repository on the hosts (default: this folder)")
     run.add_argument("--remote-python", default="python3",
-                     help="--hosts: the Python with sphfluid installed on the hosts, e.g. /shared/sph/.venv/bin/python")
+                     help="--hosts: the Python with sphfluid installed on the hosts, e.g. /shared/sph/.venv/bin/python "
+                          "(default: python3)")
     run.add_argument("--listen-host", default=None,
                      help="--hosts: the address each peer listens on (default: its own name in the hosts file)")
     run.add_argument("--insecure", action="store_true",
@@ -154,7 +185,8 @@ def build_parser() -> argparse.ArgumentParser:
                       help="also serve the web viewer on 127.0.0.1 (URL printed; ports: --web-port, --grpc-port)")
     _add_port_options(view)
     view.add_argument("--connect", dest="rerun_url", default=None, metavar="URL",
-                      help="also stream to an already running Rerun viewer, e.g. rerun+http://127.0.0.1:9876/proxy")
+                      help="also stream to an already running Rerun viewer, e.g. rerun+http://127.0.0.1:9876/proxy "
+                           "(a Rerun URL; the peers' Zenoh endpoints are --zenoh in sph peer/viewer/control)")
     run.add_argument("--quiet", action="store_true", help="no progress output")
 
     peer = sub.add_parser(
@@ -162,7 +194,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Start peer RANK of a WORLD-peer run. Every peer of the run gets the same CONFIG, --set, "
                     "--precision, --steps/--until and --run-id; each listens on its own endpoint and connects "
                     "to the others' (at least to every lower rank), e.g. on host B: sph peer dam.toml --rank 1 "
-                    "--world 2 --run-id demo --tls certs/ --listen tls/hostB:7448 --connect tls/hostA:7447 "
+                    "--world 2 --run-id demo --tls certs/ --listen tls/hostB:7448 --zenoh tls/hostA:7447 "
                     "(certs/ made once with: sph certs certs/ --peer-host hostA --peer-host hostB). Rank 0 "
                     "gathers the result and writes OUT on its machine. See docs/USAGE.md.")
     peer.add_argument("config", type=Path, nargs="?", default=None,
@@ -173,8 +205,7 @@ def build_parser() -> argparse.ArgumentParser:
                       help="the run's name on the network (letters, digits, - and _); two runs never mix")
     peer.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
                       help="Zenoh endpoint to listen on, e.g. tls/hostA:7447 (repeatable)")
-    peer.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
-                      help="another peer's endpoint, e.g. tls/hostB:7447 (repeatable)")
+    _add_zenoh_option(peer, "another peer's Zenoh endpoint, e.g. tls/hostB:7447 (repeatable)")
     peer.add_argument("--out", type=Path, default=None, help="output folder on rank 0 (default: runs/<scene name>)")
     peer.add_argument("--precision", choices=("f32", "f64"), default=None,
                       help="floating point precision (default: the scene's run.precision; auto = f64 on the "
@@ -218,8 +249,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "and leave at any time without disturbing the run. Stops when the run ends or on Ctrl-C.")
     viewer.add_argument("config", type=Path, help="the run's scene file (for the cameras, colours and the box)")
     viewer.add_argument("--run-id", required=True, help="the run to watch")
-    viewer.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
-                        help="a peer's Zenoh endpoint, e.g. tcp/10.0.0.1:7447 (repeatable)")
+    _add_zenoh_option(viewer, "a peer's Zenoh endpoint, e.g. tls/10.0.0.1:7447 (repeatable)")
     viewer.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
                         help="Zenoh endpoint for peers to connect to (repeatable)")
     viewer.add_argument("--world", type=_positive_int, default=None,
@@ -248,15 +278,18 @@ def build_parser() -> argparse.ArgumentParser:
                     "pause | resume | camera NAME | color_by speed|density|pressure|rank | set KEY=VALUE with KEY "
                     "one of forces.external, forces.gravity, sph.alpha, sph.nu, boundary.friction, "
                     "boundary.restitution. A paused run waits for resume as long as it takes.")
-    control.add_argument("--run-id", required=True)
-    control.add_argument("--connect", action="append", default=[], metavar="ENDPOINT", required=True,
-                         help="rank 0's Zenoh endpoint, e.g. tls/127.0.0.1:7447")
+    control.add_argument("--run-id", default=None,
+                         help="the run's id (default: from OUT_DIR/run.json, written by sph run --peers/--hosts)")
+    _add_zenoh_option(control, "rank 0's Zenoh endpoint, e.g. tls/127.0.0.1:7447 (default: from OUT_DIR/run.json)")
     control.add_argument("--world", type=_positive_int, default=None,
-                         help="number of peers in the run (needed with --tls: the access-control list names them)")
+                         help="number of peers in the run (needed with --tls: the access-control list names them; "
+                              "default: from OUT_DIR/run.json)")
     control.add_argument("--timeout", type=_positive_float, default=10.0,
                          help="seconds to wait for rank 0 to listen and to answer (default: 10)")
     _add_trust_options(control)
-    control.add_argument("words", nargs="+", metavar="COMMAND", help="e.g. pause, or set forces.external=[2,0,0]")
+    control.add_argument("words", nargs="+", metavar="[OUT_DIR] COMMAND",
+                         help="the run's output folder (its run.json gives --run-id, --zenoh, --world and --tls), "
+                              "then the command, e.g. runs/dam_break pause, or set forces.external=[2,0,0]")
 
     certs = sub.add_parser(
         "certs", help="make a run's CA and certificates by hand (for sph peer / viewer / control)",
@@ -272,7 +305,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="the host name or address of the next peer (rank order; repeat once per peer)")
     certs.add_argument("--viewer-host", action="append", default=[], metavar="HOST",
                        help="the viewer's host name or address, if peers connect to it (repeatable)")
-    certs.add_argument("--days", type=_positive_int, default=30, help="validity in days (default 30)")
+    certs.add_argument("--days", type=_positive_int, default=30, help="validity in days (default: 30)")
 
     render = sub.add_parser(
         "render", help="PNG frames and an MP4 of a run's fluid surface (or particles), off-screen",
@@ -282,8 +315,9 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--particles", action="store_true", help="draw the particles (coloured by speed) instead")
     render.add_argument("--frames", type=Path, default=None, help="folder for the PNG frames (default OUT/frames)")
     render.add_argument("--no-mp4", action="store_true", help="PNG frames only")
-    render.add_argument("--size", type=_positive_int, nargs=2, default=[960, 640], metavar=("W", "H"))
-    render.add_argument("--fps", type=_positive_int, default=20)
+    render.add_argument("--size", type=_positive_int, nargs=2, default=[960, 640], metavar=("W", "H"),
+                        help="image width and height in pixels (default: 960 640)")
+    render.add_argument("--fps", type=_positive_int, default=20, help="frames per second of the MP4 (default: 20)")
 
     validate = sub.add_parser(
         "validate", help="compare with reference solutions and experiments; exit 1 if a metric fails",
@@ -322,35 +356,49 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("--serve-web", action="store_true", help="serve the web viewer on 127.0.0.1 instead")
     _add_port_options(replay)
 
-    scene = sub.add_parser("scene", help="validate a scene and print it fully resolved (TOML)")
-    scene.add_argument("config", type=Path)
-    scene.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
+    scene = sub.add_parser(
+        "scene", help="check a scene as sph run does and summarise it (--full: the resolved TOML)",
+        description="Check a scene exactly as sph run does before its first step (every key, the blocks "
+                    "against the domain, the particle count and memory) without running it, and print a "
+                    "summary: particles per block, memory, neighbours per particle, the first time step. "
+                    "Exit 2 with the problem on one line if sph run would refuse it.")
+    scene.add_argument("config", type=Path, help="scene file (TOML), e.g. configs/tiny.toml")
+    scene.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                       help="override a scene key, as sph run --set (repeatable)")
+    scene.add_argument("--full", action="store_true",
+                       help="print the fully resolved scene as TOML instead (every key, defaults included)")
+
+    examples = sub.add_parser("examples", help="list the shipped scenes (configs/) with one line each",
+                              description="List the scene files shipped in configs/ with their descriptions.")
+    examples.add_argument("--dir", type=Path, default=None,
+                          help="folder of scenes to list (default: configs/ of this checkout)")
 
     bench = sub.add_parser(
         "bench", help="particle-steps/s of the 3D dam break against N, precision and threads",
         description="Benchmark the 3D dam break (configs/dam_break.toml) at several particle counts, "
                     "precisions and thread counts; optionally the same scene in PySPH and SPlisHSPlasH "
-                    "side by side (needs scripts/setup_bench.sh). Prints a table and ratios, writes JSON.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                    "side by side (needs scripts/setup_bench.sh). Prints a table and ratios, writes JSON.")
     bench.add_argument("--sizes", type=_positive_int, nargs="+", default=[10_000, 50_000, 200_000],
-                       help="target particle counts (the spacing is chosen to match)")
-    bench.add_argument("--precisions", nargs="+", choices=("f32", "f64"), default=["f32", "f64"])
-    bench.add_argument("--threads", type=_positive_int, nargs="+", default=[1, 2])
-    bench.add_argument("--steps", type=_positive_int, default=100, help="timed steps per case")
+                       help="target particle counts (the spacing is chosen to match; default: 10000 50000 200000)")
+    bench.add_argument("--precisions", nargs="+", choices=("f32", "f64"), default=["f32", "f64"],
+                       help="floating point precisions to time (default: f32 f64)")
+    bench.add_argument("--threads", type=_positive_int, nargs="+", default=[1, 2],
+                       help="numba thread counts to time (default: 1 2)")
+    bench.add_argument("--steps", type=_positive_int, default=100, help="timed steps per case (default: 100)")
     bench.add_argument("--external", action="store_true",
                        help="also run PySPH and SPlisHSPlasH on the same scene (if installed)")
     bench.add_argument("--peers", type=_positive_int, nargs="+", default=[1],
                        help="also run each case as P peer processes over Zenoh (e.g. --peers 1 2) and print "
-                            "the speed-up over one peer; P x threads must fit the cores")
+                            "the speed-up over one peer; P x threads must fit the cores (default: 1)")
     bench.add_argument("--backend", choices=("cpu", "cuda"), default="cpu",
                        help="cuda: time the GPU backend (one GPU; --threads ignored), e.g. "
-                            "--backend cuda --sizes 100000 1000000 4000000 --precisions f32 f64")
+                            "--backend cuda --sizes 100000 1000000 4000000 --precisions f32 f64 (default: cpu)")
     bench.add_argument("--config", type=Path, default=None, help="scene to benchmark (default: dam_break)")
     bench.add_argument("--json", type=Path, default=None, help="write results as JSON here")
     bench.add_argument("--network", action="store_true",
                        help="instead: the 2-peer run over loopback with TLS and with --insecure, and over two "
                             "network-namespace hosts at 0, 1 and 5 ms (root), interleaved --repeat times")
-    bench.add_argument("--repeat", type=_positive_int, default=3, help="--network: rounds of every case")
+    bench.add_argument("--repeat", type=_positive_int, default=3, help="--network: rounds of every case (default: 3)")
     return parser
 
 
@@ -406,6 +454,8 @@ def main(argv: list[str] | None = None) -> int:
             return run_study(names, args.quick, args.out, args.docs, not args.no_terms)
         if args.command == "scene":
             return _cmd_scene(args)
+        if args.command == "examples":
+            return _cmd_examples(args)
         if args.command == "bench":
             _check_bench(args)
             from launch.bench import run_bench
@@ -426,11 +476,59 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _cmd_scene(args) -> int:
-    import tomli_w
-
-    from sphcore.scene import load_scene
+    from sphcore.initial import scene_report
+    from sphcore.scene import load_scene, scene_toml, size_text
     scene = load_scene(args.config, args.overrides)
-    sys.stdout.write(tomli_w.dumps(scene.to_dict()))
+    report = scene_report(scene)  # what sph run checks before its first step (SceneError: exit 2)
+    if args.full:
+        sys.stdout.write(scene_toml(scene.to_dict()))
+        return 0
+    info, dx = scene.scene, scene.particles.spacing
+    lines = [f"{info.name}: {info.description or '(no description)'}",
+             f"  file          {scene.source} ({scene.dim}D){' with --set ' + ' '.join(args.overrides) if args.overrides else ''}"]
+    for i, (block, n) in enumerate(zip(scene.fluid.blocks, report["blocks"])):
+        lines.append(f"  fluid.blocks[{i}] {block.shape:6s} {n} particles{' (clip = true)' if block.clip else ''}")
+    lines += [
+        f"  particles     {report['particles']} (spacing {dx:g} m, at most {scene.particles.max_particles})",
+        f"  memory        about {size_text(report['memory'])} in one process ({report['cells']:.3g} grid cells)",
+        f"  neighbours    about {report['neighbours']} per particle in the bulk (support {scene.sph.support:g} "
+        f"spacings, {scene.sph.kernel})",
+        f"  first dt      {report['dt']:.3g} s ({report['dt_limit']} limit; time.mode = {scene.time.mode}, "
+        f"cfl {scene.time.cfl:g})",
+        f"  solver        {scene.sph.solver}, {scene.sph.density} density, {scene.sph.viscosity} viscosity, "
+        f"{scene.time.integrator}, {scene.time.steps} steps by default",
+        f"  domain        {scene.domain.container}, {len(scene.domain.planes)} planes, {len(scene.obstacles)} "
+        "obstacles",
+        "(sph scene --full prints every resolved key as TOML)",
+    ]
+    print("\n".join(lines))
+    return 0
+
+
+def _examples_dir() -> Path:
+    """configs/ next to the working folder, else the checkout this package runs from."""
+    for folder in (Path("configs"), Path(__file__).resolve().parent.parent / "configs"):
+        if folder.is_dir() and any(folder.glob("*.toml")):
+            return folder
+    raise UsageError("no configs/ folder here or beside the package (a pip install from a wheel does not ship "
+                     "the scenes: clone the repository, or pass --dir)")
+
+
+def _cmd_examples(args) -> int:
+    from sphcore.scene import SceneError, load_scene
+    folder = args.dir if args.dir is not None else _examples_dir()
+    files = sorted(Path(folder).glob("*.toml"))
+    if not files:
+        raise UsageError(f"--dir {str(folder)!r}: no .toml scene files there")
+    width = max(len(str(f)) for f in files)
+    for f in files:
+        try:
+            scene = load_scene(f)
+            line = f"{scene.dim}D  {scene.scene.description or scene.scene.name}"
+        except SceneError as e:
+            line = f"(not a valid scene: {e})"
+        print(f"{str(f):{width}s}  {line}")
+    print(f"(sph scene FILE: particles, memory and time step; sph run FILE --out runs/NAME: run it)")
     return 0
 
 
@@ -610,13 +708,13 @@ def _cmd_viewer(args) -> int:
         wire.check_run_id(args.run_id)
     except ValueError as e:
         raise UsageError(f"--run-id: {e}") from None
-    if not (args.connect or args.listen):
-        raise UsageError("give --connect (a peer's endpoint) and/or --listen")
+    if not (args.zenoh or args.listen):
+        raise UsageError("give --zenoh (a peer's endpoint) and/or --listen")
     if not (args.record or args.spawn or args.serve_web or args.rerun_url):
         raise UsageError("say where the frames go: --record FILE.rrd, --spawn, --serve-web or --rerun-url URL")
     from nodes import security
     trust = trust_for(args, security.VIEWER, args.world)
-    security.check_endpoints(args.listen, args.connect, trust is not None)
+    security.check_endpoints(args.listen, args.zenoh, trust is not None)
     scene = load_scene(args.config, args.overrides)
     rec = open_recording(args.run_id, args.record, args.spawn, args.serve_web, args.rerun_url, args.grpc_port,
                          args.web_port)
@@ -629,7 +727,7 @@ def _cmd_viewer(args) -> int:
     def ready():
         print("viewer ready", flush=True)
 
-    frames = run_viewer(scene, args.run_id, args.listen, args.connect, rec, domain_box(scene), args.world, 0,
+    frames = run_viewer(scene, args.run_id, args.listen, args.zenoh, rec, domain_box(scene), args.world, 0,
                         ready=ready, idle_timeout=args.idle_timeout, stats_path=args.stats, trust=trust)
     print(f"sph viewer: {frames} frames", file=sys.stderr)
     return 0
@@ -643,7 +741,13 @@ def _cmd_control(args) -> int:
 
     from nodes import control, security, wire
     from nodes.zenoh_transport import zenoh_config
-    text = " ".join(args.words)
+    words = list(args.words)
+    if args.run_id is None or not args.zenoh:
+        if len(words) < 2 or not Path(words[0]).is_dir():
+            raise UsageError("say which run: sph control OUT_DIR COMMAND (the run's output folder, with the "
+                             "run.json sph run --peers/--hosts writes) or --run-id ID --zenoh ENDPOINT COMMAND")
+        _use_run_info(args, read_run_info(Path(words.pop(0))))
+    text = " ".join(words)
     try:
         control.parse(text)
         wire.check_run_id(args.run_id)
@@ -666,8 +770,8 @@ def _cmd_control(args) -> int:
             answer.update(ack, step=step)
             answered.set()
 
-    where = ", ".join(args.connect)
-    session = zenoh.open(zenoh_config([], args.connect, trust=trust))
+    where = ", ".join(args.zenoh)
+    session = zenoh.open(zenoh_config([], args.zenoh, trust=trust))
     try:
         session.declare_subscriber(wire.ack_key(args.run_id), on_ack)  # before sending: no answer is missed
         pub = session.declare_publisher(wire.control_key(args.run_id),
@@ -692,6 +796,41 @@ def _cmd_control(args) -> int:
         return 0
     print(f"sph control: rejected: {answer['reason']}", file=sys.stderr)
     return EXIT_BAD_INPUT
+
+
+def read_run_info(out: Path) -> dict:
+    """OUT/run.json (launch/local.py write_run_info), checked; UsageError names what is wrong."""
+    import json
+    path = out / "run.json"
+    try:
+        info = json.loads(path.read_text())
+    except OSError as e:
+        raise UsageError(f"{path}: cannot read it ({e.strerror}); runs started with sph run --peers N or "
+                         "--hosts write it") from None
+    except (ValueError, RecursionError) as e:
+        raise UsageError(f"{path}: not JSON ({str(e)[:120]})") from None
+    ok = (isinstance(info, dict) and isinstance(info.get("run_id"), str)
+          and isinstance(info.get("world"), int) and not isinstance(info.get("world"), bool) and info["world"] >= 1
+          and isinstance(info.get("endpoints"), list) and info["endpoints"]
+          and all(isinstance(e, str) for e in info["endpoints"])
+          and (info.get("tls") is None or isinstance(info.get("tls"), str)))
+    if not ok:
+        raise UsageError(f"{path}: expected {{run_id: str, world: int >= 1, endpoints: [str, ...], tls: str or "
+                         "null}")
+    return info
+
+
+def _use_run_info(args, info: dict):
+    """Fill --run-id, --zenoh (rank 0's endpoint), --world and --tls/--insecure from run.json where
+    the command line does not give them."""
+    args.run_id = args.run_id or info["run_id"]
+    args.zenoh = args.zenoh or [info["endpoints"][0]]
+    args.world = args.world or info["world"]
+    if args.tls is None and not args.insecure:
+        if info["tls"] is None:
+            args.insecure = True  # the run itself is --insecure: there are no credentials to use
+        else:
+            args.tls = Path(info["tls"])
 
 
 def _cmd_certs(args) -> int:
@@ -779,19 +918,19 @@ def _print_done(out: Path, summary: dict | None = None):
 def _cmd_peer(args) -> int:
     if args.world < 1 or args.rank >= args.world:
         raise UsageError(f"--rank {args.rank} --world {args.world}: need 0 <= rank < world")
-    if not args.listen and not args.connect:
-        raise UsageError("give --listen and/or --connect endpoints (e.g. --listen tls/127.0.0.1:7447)")
+    if not args.listen and not args.zenoh:
+        raise UsageError("give --listen and/or --zenoh endpoints (e.g. --listen tls/127.0.0.1:7447)")
     from nodes import wire
     try:
         wire.check_run_id(args.run_id)
     except ValueError as e:
         raise UsageError(f"--run-id: {e}") from None
-    for ep in args.listen + args.connect:
+    for ep in args.listen + args.zenoh:
         if "/" not in ep:
             raise UsageError(f"endpoint {ep!r}: expected PROTOCOL/ADDRESS:PORT, e.g. tls/127.0.0.1:7447")
     from nodes import security
     trust = trust_for(args, security.peer_name(args.rank), args.world)
-    security.check_endpoints(args.listen, args.connect, trust is not None)
+    security.check_endpoints(args.listen, args.zenoh, trust is not None)
     _check_threads(args.threads)
     _check_backend(args)
     scene, ckpt = _scene_for_run(args)
@@ -809,10 +948,10 @@ def _cmd_peer(args) -> int:
     from nodes.driver import RunPlan, run_peer
     from nodes.zenoh_transport import ZenohEndpoint
     try:
-        endpoint = ZenohEndpoint(args.run_id, args.rank, args.world, args.listen, args.connect, args.timeout,
+        endpoint = ZenohEndpoint(args.run_id, args.rank, args.world, args.listen, args.zenoh, args.timeout,
                                  trust=trust)
     except Exception as e:  # zenoh raises ZError for endpoints it cannot use
-        raise UsageError(f"cannot open Zenoh with --listen {args.listen} --connect {args.connect}: {e}") from None
+        raise UsageError(f"cannot open Zenoh with --listen {args.listen} --zenoh {args.zenoh}: {e}") from None
     try:
         plan = RunPlan(args.steps, args.until, out if args.rank == 0 else None, args.checkpoint_every,
                        out / "checkpoints", progress=not args.quiet,

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from launch import supervise
-from launch.local import _stop, new_run_id, prepare_security, run_options
+from launch.local import _stop, new_run_id, prepare_security, run_options, write_run_info
 
 log = logging.getLogger("sph.launch")
 
@@ -84,7 +84,7 @@ def remote_command(host: Host, rank: int, hosts: list[Host], run_id: str, config
            "--run-id", run_id, "--listen", listen, "--timeout", str(args.timeout)]
     cmd += ["--tls-stdin"] if scheme == "tls" else ["--insecure"]
     for lower in hosts[:rank]:
-        cmd += ["--connect", _endpoint(scheme, lower.name, lower.port)]
+        cmd += ["--zenoh", _endpoint(scheme, lower.name, lower.port)]
     threads = host.threads or args.threads
     if threads:
         cmd += ["--threads", str(threads)]
@@ -116,6 +116,7 @@ def run_hosts(config: Path, hosts_file: Path, args, out: Path) -> int:
         # a restart from a checkpoint: the peers read its scene (argparse takes --resume=DIR as one word)
         source = f"--resume={Path(out) / 'checkpoints' / Path(resume).name}" if resume is not None else str(config)
         run_args = supervise.resumed_args(args, resume)
+        write_run_info(out, run_id, len(hosts), [_endpoint(scheme, h.name, h.port) for h in hosts], args)
         extra = supervise.peer_options(restarts, history)
         if args.checkpoint_every is not None:
             extra += ["--checkpoint-every", str(args.checkpoint_every)]

@@ -85,7 +85,7 @@ def peer_command(config: Path, rank: int, world: int, run_id: str, listen: str, 
     if getattr(args, "checkpoint_every", None) is not None:
         cmd += ["--checkpoint-every", str(args.checkpoint_every)]
     for ep in connect:
-        cmd += ["--connect", ep]
+        cmd += ["--zenoh", ep]
     return cmd + run_options(args) + security_options(args) + (["--quiet"] if args.quiet else [])
 
 
@@ -146,6 +146,21 @@ def _start_viewer(cmd, env, timeout: float = 120.0):
     return proc
 
 
+def write_run_info(out: Path, run_id: str, world: int, endpoints: list[str], args):
+    """OUT/run.json: what ``sph control OUT CMD`` (and a viewer by hand) needs to reach the running
+    run: its id, the peers' endpoints (rank 0's first), the peer count and the credentials folder
+    (None: --insecure). Rewritten, atomically, when a restart moves the peers to new ports."""
+    import json
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    tls = getattr(args, "tls_dir", None)
+    info = {"run_id": run_id, "world": world, "endpoints": list(endpoints),
+            "tls": str(Path(tls).resolve()) if tls is not None else None, "launcher_pid": os.getpid()}
+    tmp = out / ".run.json.tmp"
+    tmp.write_text(json.dumps(info, indent=1) + "\n")
+    os.replace(tmp, out / "run.json")
+
+
 def run_local_peers(config: Path, n_peers: int, out: Path, args, viewer: dict | None = None) -> int:
     """Start the viewer (if any) and the peers, wait for them; return the exit code (0, or the first
     failing peer's). With ``args.restarts`` K, a lost peer restarts the run — every peer, on new
@@ -166,6 +181,7 @@ def run_local_peers(config: Path, n_peers: int, out: Path, args, viewer: dict | 
     def start(attempt, resume, history):
         eps = endpoints if not history else [f"{scheme}/127.0.0.1:{p}" for p in free_ports(n_peers)]
         run_args = supervise.resumed_args(args, resume)
+        write_run_info(out, run_id, n_peers, eps, args)
         for rank in range(n_peers):
             # each peer connects to the lower ranks and is connected to by the higher ones (a full
             # mesh), and to the viewer

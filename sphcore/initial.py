@@ -18,7 +18,7 @@ import numpy as np
 
 from sphcore.boundaries import Walls, container_frame
 from sphcore.physics.walls import min_wall_distance
-from sphcore.scene import Scene, SceneError
+from sphcore.scene import Scene, SceneError, block_estimate
 
 
 def _block_points(block, scene: Scene, dx: float) -> np.ndarray:
@@ -44,38 +44,68 @@ def _block_points(block, scene: Scene, dx: float) -> np.ndarray:
     return pts
 
 
-def _estimate_count(block, scene: Scene, dx: float) -> float:
-    if block.shape == "box":
-        return float(np.prod([(block.max[d] - block.min[d]) / dx for d in range(scene.dim)]))
-    return (math.pi * block.radius**2 if scene.dim == 2 else 4.0 / 3.0 * math.pi * block.radius**3) / dx**scene.dim
+def _outside_domain(walls: Walls, scene: Scene, pts: np.ndarray, dx: float) -> np.ndarray:
+    """Which points lie outside the domain: beyond a container wall or a plane (obstacles are carved
+    from a block on purpose, so they do not count), or outside the bounds along a periodic axis or of
+    container = 'none'."""
+    n_domain = walls.container_walls + len(scene.domain.planes)
+    outside = np.zeros(len(pts), dtype=bool)
+    if n_domain:
+        dist = np.full(len(pts), np.inf)
+        min_wall_distance(walls.kind[:n_domain], walls.data[:n_domain].astype(np.float64), pts, dist)
+        outside |= dist < -1e-9 * dx
+    dom = scene.domain
+    for d in range(scene.dim):
+        if dom.container == "none" or dom.periodic[d]:
+            outside |= (pts[:, d] < walls.lo[d] - 1e-9 * dx) | (pts[:, d] > walls.hi[d] + 1e-9 * dx)
+    return outside
 
 
-def generate_particles(scene: Scene, walls: Walls):
-    """Return (ids (n,), x (n,3), v (n,3)) in float64; raise SceneError for impossible blocks."""
+def fill_blocks(scene: Scene, walls: Walls) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The (x, v) of each fluid block, in file order: its lattice points inside the domain, not
+    within half a spacing of a wall or inside an obstacle, not filled already by an earlier block.
+    SceneError for a block of which some points fall outside the domain (unless the block says
+    clip = true) or none is left."""
     dx = scene.particles.spacing
-    limit = scene.particles.max_particles
-    estimate = sum(_estimate_count(b, scene, dx) for b in scene.fluid.blocks)
-    if estimate > limit:
+    estimate = sum(block_estimate(b, scene.dim, dx) for b in scene.fluid.blocks)
+    if estimate > scene.particles.max_particles:  # validated at load; scenes made by dataclasses.replace too
         raise SceneError(f"particles.spacing = {dx!r}: would create about {estimate:.3g} particles, more than "
-                         f"particles.max_particles = {limit} (raise the spacing or the limit)")
-    xs, vs = [], []
+                         f"particles.max_particles = {scene.particles.max_particles} (raise the spacing or the limit)")
+    filled = []
     for i, block in enumerate(scene.fluid.blocks):
+        key = f"fluid.blocks[{i}]"
         pts = _block_points(block, scene, dx)
+        outside = _outside_domain(walls, scene, pts, dx)
+        n_out = int(outside.sum())
+        if n_out == len(pts):
+            raise SceneError(f"{key}: no particle of this block lies inside the domain (check its min/max or "
+                             "center/radius against domain and obstacles)")
+        if n_out and not block.clip:
+            raise SceneError(f"{key}: {n_out} of its {len(pts)} particles fall outside the domain (container "
+                             "walls, domain.planes or bounds); move or shrink the block, or set "
+                             f"{key}.clip = true to keep only the part inside")
         dist = np.full(len(pts), np.inf)
         if walls.kind.shape[0]:
             min_wall_distance(walls.kind, walls.data.astype(np.float64), pts, dist)
-        keep = dist >= 0.5 * dx * (1 - 1e-6)
-        for prev in xs:  # blocks must not overlap: skip points already filled by an earlier block
+        keep = (dist >= 0.5 * dx * (1 - 1e-6)) & ~outside
+        for prev, _ in filled:  # blocks must not overlap: skip points already filled by an earlier block
             if len(prev) and len(pts):
                 lo, hi = prev.min(axis=0) - 0.5 * dx, prev.max(axis=0) + 0.5 * dx
                 inside = np.all((pts >= lo) & (pts <= hi), axis=1)
                 keep &= ~inside
         pts = pts[keep]
         if len(pts) == 0:
-            raise SceneError(f"fluid.blocks[{i}]: no particle of this block lies inside the domain (check its "
-                             "min/max or center/radius against domain and obstacles)")
-        xs.append(pts)
-        vs.append(np.tile(np.array(block.velocity, dtype=float), (len(pts), 1)))
+            raise SceneError(f"{key}: no particle of this block is left inside the domain (within half a spacing "
+                             "of a wall, inside an obstacle or filled by an earlier block)")
+        filled.append((pts, np.tile(np.array(block.velocity, dtype=float), (len(pts), 1))))
+    return filled
+
+
+def generate_particles(scene: Scene, walls: Walls):
+    """Return (ids (n,), x (n,3), v (n,3)) in float64; raise SceneError for impossible blocks."""
+    filled = fill_blocks(scene, walls)
+    xs = [x for x, _ in filled]
+    vs = [v for _, v in filled]
     x = np.concatenate(xs)
     v = np.concatenate(vs)
     if scene.fluid.initial_flow == "taylor_green":
@@ -93,3 +123,42 @@ def generate_particles(scene: Scene, walls: Walls):
         v[:, 1] += -A * (x[:, 1] - c[1])
     ids = np.arange(len(x), dtype=np.int64)
     return ids, x, v
+
+
+def lattice_neighbours(support: float, dim: int) -> int:
+    """Neighbours of a particle inside a full lattice: the other lattice points closer than the
+    support radius H = support x spacing."""
+    k = int(math.ceil(support))
+    r = np.arange(-k, k + 1)
+    grids = np.meshgrid(*([r] * dim), indexing="ij")
+    inside = sum(g.astype(float) ** 2 for g in grids) < support**2
+    return int(inside.sum()) - 1
+
+
+def scene_report(scene: Scene) -> dict:
+    """What ``sph run`` checks and makes before its first step, without building a simulation: the
+    particles of each block (the same ``fill_blocks`` the run uses; SceneError for a bad block), the
+    memory estimate, the neighbours of a particle in the bulk and the first time step estimated from
+    the CFL limits at the initial speeds and the body forces."""
+    from sphcore.boundaries import build_walls
+    from sphcore.choices import KERNELS
+    from sphcore.scene import BYTES_PER_CELL, BYTES_PER_PARTICLE, resource_estimate
+    from sphcore.timestep import choose_dt
+    dx = scene.particles.spacing
+    H = scene.sph.support * dx
+    walls = build_walls(scene, KERNELS[scene.sph.kernel], H, np.float64)
+    filled = fill_blocks(scene, walls)
+    counts = [len(x) for x, _ in filled]
+    n = sum(counts)
+    est = resource_estimate(scene)
+    vmax = max(float(np.sqrt((v**2).sum(axis=1)).max()) for _, v in filled)
+    if scene.fluid.initial_flow == "taylor_green":
+        vmax += scene.fluid.flow_speed
+    amax = math.hypot(*scene.forces.gravity) + math.hypot(*scene.forces.external)
+    nu = scene.sph.nu if scene.sph.viscosity in ("muller", "morris") else 0.0
+    c0 = 0.0 if scene.sph.solver == "dfsph" else scene.sph.sound_speed
+    dt, limit = choose_dt(scene.time.mode, scene.time.dt, scene.time.cfl, 0.5 * H, c0, vmax, amax, nu,
+                          scene.terms.shifting)
+    return {"blocks": counts, "particles": n, "cells": est["cells"],
+            "memory": n * BYTES_PER_PARTICLE + est["cells"] * BYTES_PER_CELL,
+            "neighbours": lattice_neighbours(scene.sph.support, scene.dim), "dt": dt, "dt_limit": limit}

@@ -8,11 +8,15 @@ are applied to the raw TOML data before validation, so they pass through the sam
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
+import os
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from sphcore.choices import EOSES, INTEGRATORS, KERNELS, VISCOSITIES
 
@@ -60,6 +64,8 @@ class Block:
     velocity: tuple = spec((0.0, 0.0, 0.0), "initial velocity (m/s)", length=VEC)
     frame: str = spec("world", "coordinates of min/max/center: world or the container's local frame",
                       choices=("world", "container"))
+    clip: bool = spec(False, "keep only the part of the block inside the domain (false: a block reaching outside "
+                             "the container or a plane is an error naming how many particles fall outside)")
 
 
 @dataclass(frozen=True)
@@ -304,8 +310,17 @@ def _finite(x) -> bool:
 
 
 def _short(value, limit: int = 60) -> str:
-    text = repr(value)
+    try:
+        text = repr(value)
+    except RecursionError:
+        return "<an array nested too deeply>"
     return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _did_you_mean(name: str, allowed) -> str:
+    """' (did you mean 'x'?)' for a close spelling of one of ``allowed``, else ''."""
+    close = difflib.get_close_matches(str(name), [str(a) for a in allowed], n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
 
 
 def _check_value(key: str, f: dataclasses.Field, value: Any):
@@ -314,27 +329,27 @@ def _check_value(key: str, f: dataclasses.Field, value: Any):
     meta = f.metadata
     if t == "float":
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise SceneError(f"{key} = {value!r}: expected {_type_name(t)}")
+            raise SceneError(f"{key} = {_short(value)}: expected {_type_name(t)}")
         if not _finite(value):
             raise SceneError(f"{key} = {_short(value)}: expected a finite number")
         value = float(value)
         if not math.isfinite(value):
-            raise SceneError(f"{key} = {value!r}: expected a finite number")
+            raise SceneError(f"{key} = {_short(value)}: expected a finite number")
     elif t == "int":
         if isinstance(value, bool) or not isinstance(value, int):
-            raise SceneError(f"{key} = {value!r}: expected {_type_name(t)}")
+            raise SceneError(f"{key} = {_short(value)}: expected {_type_name(t)}")
     elif t == "bool":
         if not isinstance(value, bool):
-            raise SceneError(f"{key} = {value!r}: expected {_type_name(t)}")
+            raise SceneError(f"{key} = {_short(value)}: expected {_type_name(t)}")
     elif t == "str":
         if not isinstance(value, str):
-            raise SceneError(f"{key} = {value!r}: expected {_type_name(t)}")
+            raise SceneError(f"{key} = {_short(value)}: expected {_type_name(t)}")
     elif t == "tuple":
         if not isinstance(value, (list, tuple)):
-            raise SceneError(f"{key} = {value!r}: expected {_type_name(t)}")
+            raise SceneError(f"{key} = {_short(value)}: expected {_type_name(t)}")
         length = meta.get("length")
         if length and len(value) not in length:
-            raise SceneError(f"{key} = {value!r}: expected {' or '.join(map(str, length))} components")
+            raise SceneError(f"{key} = {_short(value)}: expected {' or '.join(map(str, length))} components")
         elem_bool = isinstance(f.default, tuple) and f.default and isinstance(f.default[0], bool)
         elem_int = isinstance(f.default, tuple) and f.default and type(f.default[0]) is int
         out = []
@@ -345,7 +360,7 @@ def _check_value(key: str, f: dataclasses.Field, value: Any):
                 out.append(e)
             elif elem_bool:
                 if not isinstance(e, bool):
-                    raise SceneError(f"{key} = {value!r}: expected an array of true/false")
+                    raise SceneError(f"{key} = {_short(value)}: expected an array of true/false")
                 out.append(e)
             else:
                 if isinstance(e, bool) or not isinstance(e, (int, float)) or not _finite(e):
@@ -354,23 +369,25 @@ def _check_value(key: str, f: dataclasses.Field, value: Any):
         return tuple(out)
     choices = meta.get("choices")
     if choices is not None and value not in choices:
-        raise SceneError(f"{key} = {value!r}: allowed values are {', '.join(repr(c) for c in choices)}")
+        hint = _did_you_mean(value, choices) if isinstance(value, str) else ""
+        raise SceneError(f"{key} = {_short(value)}: allowed values are {', '.join(repr(c) for c in choices)}{hint}")
     rng = meta.get("range")
     if rng is not None:
         lo, hi = rng
         if value > hi or value < lo or (meta.get("min_exclusive") and value == lo):
             left = "(" if meta.get("min_exclusive") else "["
-            raise SceneError(f"{key} = {value!r}: allowed range is {left}{lo:g}, {hi:g}]")
+            raise SceneError(f"{key} = {_short(value)}: allowed range is {left}{lo:g}, {hi:g}]")
     return value
 
 
 def _build(cls, data: dict, path: str):
     if not isinstance(data, dict):
-        raise SceneError(f"{path}: expected a table, got {data!r}")
+        raise SceneError(f"{path}: expected a table, got {_short(data)}")
     fields = {f.name: f for f in dataclasses.fields(cls)}
     unknown = [k for k in data if k not in fields]
     if unknown:
-        raise SceneError(f"unknown key '{path}.{unknown[0]}' (allowed in [{path}]: {', '.join(fields)})")
+        raise SceneError(f"unknown key '{path}.{unknown[0]}'{_did_you_mean(unknown[0], fields)} (allowed in "
+                         f"[{path}]: {', '.join(fields)})")
     values = {}
     for name, f in fields.items():
         key = f"{path}.{name}"
@@ -380,7 +397,7 @@ def _build(cls, data: dict, path: str):
         item_cls = LIST_ITEMS.get(key)
         if item_cls is not None:
             if not isinstance(value, list):
-                raise SceneError(f"{key} = {value!r}: expected an array of tables ([[{key}]])")
+                raise SceneError(f"{key} = {_short(value)}: expected an array of tables ([[{key}]])")
             values[name] = tuple(_build(item_cls, item, f"{key}[{i}]") for i, item in enumerate(value))
         else:
             values[name] = _check_value(key, f, value)
@@ -416,6 +433,8 @@ def parse_override(text: str) -> tuple[list, Any]:
         value = tomllib.loads(f"v = {rhs.strip()}")["v"]
     except ValueError:  # TOMLDecodeError, or an integer longer than Python's int_max_str_digits
         value = rhs.strip()
+    except RecursionError:
+        raise SceneError(f"--set {_short(text)}: the value is nested too deeply") from None
     return path, value
 
 
@@ -423,7 +442,8 @@ def apply_override(data: dict, path: list, value, text: str):
     if len(path) < 2 or not isinstance(path[0], str):
         raise SceneError(f"--set {text!r}: expected section.key=value")
     if path[0] not in SECTIONS:
-        raise SceneError(f"--set {text!r}: unknown section '{path[0]}' (sections: {', '.join(SECTIONS)})")
+        raise SceneError(f"--set {text!r}: unknown section '{path[0]}'{_did_you_mean(path[0], SECTIONS)} "
+                         f"(sections: {', '.join(SECTIONS)})")
     node = data
     for seg in path[:-1]:
         if isinstance(seg, int):
@@ -440,27 +460,92 @@ def apply_override(data: dict, path: list, value, text: str):
     node[last] = value
 
 
+MAX_SCENE_BYTES = 4 << 20  # a scene is a short text file; anything larger is not one
+
+
+def read_scene_file(path: str | Path) -> dict:
+    """The TOML data of a scene file; SceneError (one line) for a file that cannot be read, is not
+    UTF-8 text, is not TOML or nests too deeply."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            raw = f.read(MAX_SCENE_BYTES + 1)
+    except OSError as e:
+        raise SceneError(f"cannot read scene file {str(path)!r}: {e.strerror}") from None
+    if len(raw) > MAX_SCENE_BYTES:
+        raise SceneError(f"{path}: larger than {MAX_SCENE_BYTES >> 20} MiB; a scene is a short TOML text file")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise SceneError(f"{path}: not a text file (byte 0x{raw[e.start]:02x} at offset {e.start} is not UTF-8); "
+                         "a scene is a TOML text file") from None
+    if "\0" in text:
+        raise SceneError(f"{path}: not a text file (a NUL byte at offset {text.index(chr(0))}); a scene is a TOML "
+                         "text file")
+    try:
+        return tomllib.loads(text)
+    except ValueError as e:  # TOMLDecodeError, or an integer longer than int_max_str_digits
+        raise SceneError(f"{path}: not valid TOML: {e}") from None
+    except RecursionError:
+        raise SceneError(f"{path}: not valid TOML here: arrays or tables nested too deeply") from None
+
+
 def load_scene(path: str | Path, overrides: list[str] = ()) -> Scene:
     """Read, override and validate a scene file."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as e:
-        raise SceneError(f"cannot read scene file {str(path)!r}: {e.strerror}") from None
-    try:
-        data = tomllib.loads(text)
-    except ValueError as e:  # TOMLDecodeError, or an integer longer than int_max_str_digits
-        raise SceneError(f"{path}: not valid TOML: {e}") from None
+    data = read_scene_file(path)
+    written_dim = _written_dim(data)
     for text_ in overrides:
         p, v = parse_override(text_)
         apply_override(data, p, v, text_)
-    return scene_from_dict(data, source=str(path))
+    scene = scene_from_dict(data, source=str(path))
+    if written_dim is not None and scene.dim != written_dim:
+        _check_dim_change(scene, written_dim, path)
+    return scene
+
+
+def _written_dim(data: dict):
+    info = data.get("scene", {})
+    dim = info.get("dim", 3) if isinstance(info, dict) else None
+    return dim if dim in (2, 3) and not isinstance(dim, bool) else None
+
+
+def _check_dim_change(scene: Scene, written_dim: int, path: Path):
+    """--set scene.dim=2 on a scene written for 3D: refused if any vector has a z component the 2D
+    run would drop (2D -> 3D needs every vector given in 3 components, which validation checks)."""
+    if scene.dim != 2:
+        return
+    for key, value in _vectors(scene):
+        if len(value) == 3 and value[2]:
+            raise SceneError(f"--set scene.dim=2: {path} is written for {written_dim}D and {key} = "
+                             f"{_toml_value(value)} has a z component a 2D run would drop; write a 2D scene "
+                             "(2-component vectors) instead of changing scene.dim")
+
+
+def _vectors(scene: Scene):
+    """(key, value) of every 2-or-3-component vector of the scene."""
+    def walk(obj, path):
+        for f in dataclasses.fields(obj):
+            val = getattr(obj, f.name)
+            if f.metadata.get("length") == VEC:
+                yield f"{path}.{f.name}", val
+            elif isinstance(val, tuple) and val and dataclasses.is_dataclass(val[0]):
+                for i, o in enumerate(val):
+                    yield from walk(o, f"{path}.{f.name}[{i}]")
+    for name in SECTIONS:
+        val = getattr(scene, name)
+        if isinstance(val, tuple):
+            for i, o in enumerate(val):
+                yield from walk(o, f"{name}[{i}]")
+        else:
+            yield from walk(val, name)
 
 
 def scene_from_dict(data: dict, source: str = "") -> Scene:
     unknown = [k for k in data if k not in SECTIONS]
     if unknown:
-        raise SceneError(f"unknown section [{unknown[0]}] (sections: {', '.join(SECTIONS)})")
+        raise SceneError(f"unknown section [{unknown[0]}]{_did_you_mean(unknown[0], SECTIONS)} (sections: "
+                         f"{', '.join(SECTIONS)})")
     parts = {}
     for name, cls in SECTIONS.items():
         if name == "obstacles":
@@ -508,6 +593,40 @@ def mesh_path(scene: Scene, obstacle) -> Path:
     if not path.is_absolute() and scene.source:
         path = Path(scene.source).parent / path
     return path
+
+
+MESH_SUFFIXES = (".stl", ".obj", ".ply")
+
+
+def check_mesh_file(path: Path, key: str):
+    """A mesh obstacle's file holds a closed-enough triangle mesh that PyVista reads; SceneError
+    (one line) for an empty, truncated, corrupt or unknown file. VTK's own error printing is
+    silenced meanwhile: the SceneError says it once."""
+    if path.suffix.lower() not in MESH_SUFFIXES:
+        raise SceneError(f"{key}: a mesh file must end in {', '.join(MESH_SUFFIXES)}, not {path.suffix!r}")
+    if path.stat().st_size == 0:
+        raise SceneError(f"{key}: the file is empty")
+    import pyvista as pv
+    import vtk
+    shown = vtk.vtkObject.GetGlobalWarningDisplay()
+    vtk.vtkObject.GlobalWarningDisplayOff()
+    try:
+        mesh = pv.read(str(path))
+        if not isinstance(mesh, pv.PolyData):
+            mesh = mesh.extract_surface()
+        mesh = mesh.triangulate()
+        n_triangles = mesh.n_cells
+        points = np.asarray(mesh.points, dtype=np.float64)
+    except Exception as e:  # VTK and PyVista raise many kinds for files they cannot parse
+        raise SceneError(f"{key}: not a readable mesh ({type(e).__name__}: {str(e)[:120]})") from None
+    finally:
+        vtk.vtkObject.SetGlobalWarningDisplay(shown)
+    if n_triangles == 0:
+        raise SceneError(f"{key}: no triangles could be read (empty, truncated or corrupt {path.suffix} file)")
+    if not np.isfinite(points).all():
+        raise SceneError(f"{key}: the mesh has non-finite vertex coordinates")
+    if np.ptp(points, axis=0).max() <= 0:
+        raise SceneError(f"{key}: the mesh has no extent (every vertex at one point)")
 
 
 def _check_combinations(s: Scene) -> Scene:
@@ -559,6 +678,7 @@ def _check_combinations(s: Scene) -> Scene:
             path = mesh_path(s, ob)
             if not path.is_file():
                 raise SceneError(f"obstacles[{i}].file = {ob.file!r}: no such file ({path})")
+            check_mesh_file(path, f"obstacles[{i}].file = {ob.file!r}")
             ob = dataclasses.replace(ob, file=str(path.resolve()))  # resolved: scene.toml works anywhere
         obstacles.append(ob)
     s = dataclasses.replace(s, obstacles=tuple(obstacles))
@@ -598,7 +718,93 @@ def _check_combinations(s: Scene) -> Scene:
             raise SceneError("fluid.initial_flow = 'taylor_green': needs dim = 2 and domain.periodic = [true, true]")
     if s.time.mode == "fixed" and s.time.integrator == "leapfrog" and s.time.dt <= 0:
         raise SceneError(f"time.dt = {s.time.dt!r}: must be positive")
+    _check_resources(s)
     return s
+
+
+# Memory of one process, per particle and per grid cell, at float64 (f32 needs less): the state
+# (id, x, v, m, a, rho, p: 104 B), its copy while the grid sorts it, the sort keys, the stages'
+# scratch and the temporaries of generating the lattice and gathering final.npz; the grid holds
+# three int64 arrays per cell (bin starts, cell begin and end). An estimate, on the high side.
+BYTES_PER_PARTICLE = 400
+BYTES_PER_CELL = 32
+
+
+def block_estimate(block: Block, dim: int, dx: float) -> float:
+    """About how many lattice points ``block`` fills (before anything outside the domain or inside an
+    obstacle is carved away)."""
+    if block.shape == "box":
+        return float(math.prod(max((block.max[d] - block.min[d]) / dx, 1.0) for d in range(dim)))
+    volume = math.pi * block.radius**2 if dim == 2 else 4.0 / 3.0 * math.pi * block.radius**3
+    return volume / dx**dim
+
+
+def _domain_extent(s: Scene) -> list[float]:
+    """The edge lengths of the domain's bounding box (an upper bound for a rotated container)."""
+    dom = s.domain
+    if dom.container == "none":
+        return [dom.bounds_max[d] - dom.bounds_min[d] for d in range(3)]
+    if dom.container == "box":
+        edges = [e * dom.scale for e in dom.size]
+    elif dom.container == "sphere":
+        edges = [2.0 * dom.radius * dom.scale] * 3
+    else:
+        edges = [dom.size[0] * dom.scale, dom.size[1] * dom.scale, dom.size[0] * dom.scale]
+    if any(dom.rotation):
+        edges = [math.hypot(*edges[: s.dim])] * 3
+    return edges
+
+
+def available_memory() -> int | None:
+    """Bytes of memory a new allocation can get on this machine (Linux MemAvailable), or None."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
+def size_text(nbytes: float) -> str:
+    """1.23 GB, 456 MB, 12 kB, 80 B."""
+    for unit, scale in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if nbytes >= scale:
+            return f"{nbytes / scale:.3g} {unit}"
+    return f"{int(nbytes)} B"
+
+
+def resource_estimate(s: Scene) -> dict:
+    """What the scene needs before any array exists: particles (lattice estimate, per block and in
+    all), grid cells and memory of one process (bytes)."""
+    dx = s.particles.spacing
+    per_block = [block_estimate(b, s.dim, dx) for b in s.fluid.blocks]
+    particles = sum(per_block)
+    H = s.sph.support * dx
+    cells = math.prod(max(e, 0.0) / H + 3.0 for e in _domain_extent(s)[: s.dim])
+    return {"per_block": per_block, "particles": particles, "cells": cells,
+            "memory": particles * BYTES_PER_PARTICLE + cells * BYTES_PER_CELL}
+
+
+def _check_resources(s: Scene, available: int | None = None):
+    """Refuse a scene that would make more particles than particles.max_particles, or need more memory
+    than this machine has free, before anything is allocated."""
+    est = resource_estimate(s)
+    dx = s.particles.spacing
+    limit = s.particles.max_particles
+    if est["particles"] > limit:
+        raise SceneError(f"particles.spacing = {dx!r}: would create about {est['particles']:.3g} particles, more "
+                         f"than particles.max_particles = {limit} (raise the spacing or the limit)")
+    available = available_memory() if available is None else available
+    if available is not None and est["memory"] > available:
+        raise SceneError(f"particles.spacing = {dx!r}: about {est['particles']:.3g} particles and {est['cells']:.3g} "
+                         f"grid cells need about {size_text(est['memory'])} of memory ({BYTES_PER_PARTICLE} B per "
+                         f"particle, {BYTES_PER_CELL} B per cell), more than the {size_text(available)} available "
+                         "here; raise particles.spacing or make the blocks or the domain smaller")
 
 
 def reference_markdown() -> str:
@@ -637,3 +843,41 @@ def _toml_value(v) -> str:
     if isinstance(v, (tuple, list)):
         return "[" + ", ".join(_toml_value(e) for e in v) + "]"
     return f"{v:g}" if isinstance(v, float) else str(v)
+
+
+def scene_toml(resolved: dict) -> str:
+    """TOML text of a resolved scene (Scene.to_dict): one line per key, vectors on one line, each
+    array of tables as [[section.key]] after its section's keys."""
+    lines = []
+
+    def table(path: str, values: dict, header: str):
+        lines.append(header)
+        nested = []
+        for key, value in values.items():
+            if isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
+                nested.append((key, value))
+            elif isinstance(value, list) and not value and f"{path}.{key}" in LIST_ITEMS:
+                continue  # an empty array of tables: nothing to write
+            else:
+                lines.append(f"{key} = {_toml_exact(value)}")
+        lines.append("")
+        for key, items in nested:
+            for item in items:
+                table(f"{path}.{key}", item, f"[[{path}.{key}]]")
+
+    for name, value in resolved.items():
+        if isinstance(value, list):
+            for item in value:
+                table(name, item, f"[[{name}]]")
+        else:
+            table(name, value, f"[{name}]")
+    return "\n".join(lines)
+
+
+def _toml_exact(v) -> str:
+    """A TOML value that reads back to exactly ``v`` (floats by repr, not rounded like _toml_value)."""
+    if isinstance(v, float):
+        return repr(v)
+    if isinstance(v, (tuple, list)):
+        return "[" + ", ".join(_toml_exact(e) for e in v) + "]"
+    return _toml_value(v)

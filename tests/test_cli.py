@@ -189,7 +189,7 @@ def test_bad_options_exit_2_before_anything_runs(args, fragments, tmp_path, caps
 @pytest.mark.fast
 def test_scene_prints_the_resolved_scene_with_overrides(capsys):
     # When the dam break is printed with a kernel override
-    rc = main(["scene", DAM_BREAK, "--set", "sph.kernel=muller"])
+    rc = main(["scene", DAM_BREAK, "--set", "sph.kernel=muller", "--full"])
     out = capsys.readouterr().out
     # Then the TOML carries the override and every resolved default, and is itself a valid scene
     assert rc == 0
@@ -199,6 +199,40 @@ def test_scene_prints_the_resolved_scene_with_overrides(capsys):
     assert data["boundary"]["gap"] == 0.25  # a default the file does not set
     s = scene_from_dict(data)
     assert s.sph.kernel == "muller" and s.particles.spacing == 0.0125
+
+
+@pytest.mark.fast
+def test_scene_full_writes_every_vector_on_one_line(capsys):
+    rc = main(["scene", TINY, "--full"])
+    out = capsys.readouterr().out
+    assert rc == 0
+    assert "gravity = [0.0, -9.81, 0.0]" in out
+    assert all(not line.strip().startswith(("0", "-", "1")) for line in out.splitlines()), out
+    assert len(out.splitlines()) < 130  # one line per key (197 lines with a component per line)
+
+
+@pytest.mark.fast
+def test_scene_summary_counts_the_particles_of_each_block_as_the_run_makes_them(capsys):
+    # Given tiny.toml: a box pool and a sphere drop, 498 particles in all (the run's count)
+    rc = main(["scene", TINY])
+    out = capsys.readouterr().out
+    assert rc == 0
+    assert "fluid.blocks[0] box    432 particles" in out
+    assert "fluid.blocks[1] sphere 66 particles" in out
+    assert "particles     498 " in out
+    for word in ("memory        about", "neighbours    about", "first dt", "acoustic limit"):
+        assert word in out, word
+    assert len(out.splitlines()) < 20
+
+
+@pytest.mark.fast
+def test_examples_lists_every_shipped_scene_with_its_description(capsys):
+    rc = main(["examples"])
+    out = capsys.readouterr().out
+    assert rc == 0
+    lines = [line for line in out.splitlines() if line.split()[0].endswith(".toml")]
+    assert len(lines) == len(list(CONFIGS.glob("*.toml")))
+    assert any("tiny.toml" in line and "a drop falls into a shallow pool" in line for line in lines)
 
 
 @pytest.mark.fast
