@@ -415,6 +415,8 @@ def main(argv: list[str] | None = None) -> int:
     from sphcore.solver import SimulationError
     from nodes.rerun_sinks import SinkError
     from nodes.security import SecurityError
+    from sphcore.checkpoint import CheckpointError
+    from nodes.driver import OutputError
     try:
         if args.command == "run":
             return _cmd_run(args)
@@ -460,7 +462,8 @@ def main(argv: list[str] | None = None) -> int:
             _check_bench(args)
             from launch.bench import run_bench
             return run_bench(args)
-    except (SceneError, UsageError, BackendUnavailable, SecurityError, SinkError) as e:
+    except (SceneError, UsageError, BackendUnavailable, SecurityError, SinkError, CheckpointError,
+            OutputError) as e:
         print(f"sph {args.command}: error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except SimulationError as e:
@@ -551,9 +554,19 @@ def _check_backend(args):
 
 
 def _output_folder(args, scene) -> Path:
+    """The output folder, checked without creating anything: it is a folder (or will be one) and the
+    nearest existing folder above it is writable. The run creates it just before its first step."""
+    import os
     out = args.out if args.out is not None else Path("runs") / scene.scene.name
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {str(out)!r}: exists and is not a folder")
+    above = out.absolute()
+    while not above.exists():
+        above = above.parent
+    if not above.is_dir():
+        raise UsageError(f"--out {str(out)!r}: {above} is a file, so no folder can be made under it")
+    if not os.access(above, os.W_OK | os.X_OK):
+        raise UsageError(f"--out {str(out)!r}: {above} is not writable by this user")
     return out
 
 
@@ -600,7 +613,11 @@ def _scene_for_run(args):
         raise UsageError(f"--resume: {e}") from None
     if args.precision and args.precision != ckpt.manifest["precision"]:
         raise UsageError(f"--precision {args.precision}: the checkpoint is {ckpt.manifest['precision']}")
-    scene = scene_from_dict(ckpt.manifest["scene"], source=str(ckpt.path))
+    from sphcore.scene import SceneError
+    try:
+        scene = scene_from_dict(ckpt.manifest["scene"], source=str(ckpt.path))
+    except SceneError as e:
+        raise UsageError(f"--resume: {ckpt.path}/manifest.json: its scene: {e}") from None
     return scene, ckpt
 
 
@@ -631,6 +648,8 @@ def _cmd_run(args) -> int:
             raise UsageError(f"--peers {args.peers} --hosts {args.hosts}: the hosts file lists {len(hosts)} peers")
         _check_peers(scene, len(hosts))
         _check_restarts(args, scene)
+        from sphcore.initial import scene_report
+        scene_report(scene)  # the blocks, as each peer will fill them, before anything starts
         if args.insecure:
             from nodes.security import is_loopback
             remote = [h.name for h in hosts if not is_loopback(h.name)]
@@ -645,6 +664,9 @@ def _cmd_run(args) -> int:
     _check_restarts(args, scene)
     if args.peers > 1:
         _check_peers(scene, args.peers)
+        if ckpt is None:  # the blocks, as each peer will fill them, before OUT/tls or any process
+            from sphcore.initial import scene_report
+            scene_report(scene)
         from launch.local import run_local_peers
         config = args.config
         if ckpt is not None:  # the viewer reads the checkpoint's scene from a file
@@ -668,6 +690,11 @@ def _cmd_run(args) -> int:
                         args.until, args.threads, progress=not args.quiet, viewer=viewer_options(args, scene, out),
                         resume=ckpt, checkpoint_every=args.checkpoint_every, backend=args.backend,
                         device=args.device)
+    if summary.get("status") == "interrupted":
+        stop = summary["interrupted"]
+        print(f"sph run: interrupted ({stop['signal']}) at step {stop['step']}; the outputs of that step are in "
+              f"{out}/ (summary.json status 'interrupted')", file=sys.stderr)
+        return 130
     if not args.quiet:
         _print_done(out, summary)
     return 0

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
+import threading
 import time
 from pathlib import Path
 
@@ -58,10 +60,45 @@ class LocalFrames:
         pass
 
 
+class StopOnSignal:
+    """Ctrl-C (SIGINT) or SIGTERM ends the run at the end of the current step, so that its outputs
+    (summary.json, final.npz: marked interrupted, with the step) hold a consistent state; a second
+    Ctrl-C aborts at once (KeyboardInterrupt). Handlers are installed only in the main thread and
+    put back on exit."""
+
+    def __init__(self):
+        self.signal_name = None
+        self._previous = {}
+
+    def __enter__(self):
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._previous[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def __exit__(self, *exc):
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+        return False
+
+    def _handle(self, signum, frame):
+        if self.signal_name is not None and signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        self.signal_name = signal.Signals(signum).name
+        log.warning("%s: stopping at the end of this step and writing the outputs (Ctrl-C again: abort now, "
+                    "nothing written)", self.signal_name)
+
+    def requested(self) -> str | None:
+        return self.signal_name
+
+
 def run_scene(scene: Scene, out: Path, precision: str | None, steps: int | None, until: float | None,
               threads: int | None, progress: bool = True, viewer: dict | None = None, resume=None,
               checkpoint_every: int | None = None, backend: str = "cpu", device: int | None = None) -> dict:
     """Run ``scene`` and write summary.json, final.npz and scene.toml into ``out``; return the summary.
+    ``out`` is created and checked before the first step, summary.json is written there at once and
+    rewritten every few seconds; Ctrl-C or SIGTERM ends the run after the current step with the
+    outputs written and summary.json's status "interrupted".
     ``viewer`` (record / spawn / serve_web / connect) renders a frame every render.every steps and
     logs it to Rerun from this process. ``resume`` (a loaded Checkpoint) continues from it;
     checkpoints are written every ``checkpoint_every`` steps (default: the scene's
@@ -78,5 +115,6 @@ def run_scene(scene: Scene, out: Path, precision: str | None, steps: int | None,
              sim.device_name if backend == "cuda" else f"{numba.get_num_threads()} numba threads")
     frames = LocalFrames(scene, sim, viewer) if viewer is not None else None
     peer = PeerRun(sim, scene, NULL_HALO, InProcessNetwork().endpoint(0), t_start=t_start, t_setup=t_setup)
-    plan = RunPlan(steps, until, out, checkpoint_every, progress=progress)
-    return run_blocking(drive(peer, plan, frames))
+    with StopOnSignal() as stopper:
+        plan = RunPlan(steps, until, out, checkpoint_every, progress=progress, stop=stopper.requested)
+        return run_blocking(drive(peer, plan, frames))

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import platform
 import sys
 import time
@@ -58,6 +59,26 @@ class RunPlan:
     progress: bool = True                 # rank 0 shows a progress bar or log lines
     report: Callable[[int], None] | None = None  # called with the step number after every step
     restarts: list | None = None          # the launcher's restart history, for summary.json
+    summary_every_s: float = 10.0         # rank 0 rewrites OUT/summary.json (atomically) this often
+    stop: Callable[[], str | None] | None = None  # after each step: the signal asking to stop, or None
+
+
+class OutputError(ValueError):
+    """The output folder cannot be created or written; checked before the first step."""
+
+
+def prepare_output(out: Path):
+    """Create ``out`` and make sure a file can be written there (created and removed), before any
+    step runs; OutputError (one line) says why not."""
+    out = Path(out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / f".write-test-{os.getpid()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as e:
+        raise OutputError(f"--out {str(out)!r}: cannot write there ({e.strerror or e}"
+                          f"{': ' + e.filename if e.filename and str(e.filename) != str(out) else ''})") from None
 
 
 @dataclass
@@ -164,12 +185,14 @@ def run_blocking(gen):
 
 
 def advance(sim: Simulation, halo, scene: Scene, steps: int | None, until: float | None, progress: bool,
-            on_step=None):
+            on_step=None, stop=None):
     """Generator: step ``sim`` (over ``halo``) for ``steps`` steps or until simulated time ``until``
     (else the scene's time.steps; a resumed run counts from its checkpoint's step); ``on_step(seconds)``
-    (a generator function) runs after each step (seconds None for the first, untimed one). Returns
-    the loop timings: the first step (numba compilation or cache load) is timed apart from the loop,
-    so that particle-steps/s measures stepping only."""
+    (a generator function) runs after each step (seconds None for the first, untimed one); ``stop()``
+    after each step returns the name of a signal that asks the run to end there (or None). Returns
+    the loop timings (and "interrupted": the signal, if one stopped it): the first step (numba
+    compilation or cache load) is timed apart from the loop, so that particle-steps/s measures
+    stepping only."""
     target_steps = steps if steps is not None else (None if until is not None else scene.time.steps)
 
     def cap():
@@ -184,11 +207,12 @@ def advance(sim: Simulation, halo, scene: Scene, steps: int | None, until: float
     t_first = time.perf_counter() - t0
     sim.timers.reset()
     steps_in_loop = 0
+    interrupted = stop() if stop is not None else None  # a signal during the first step
     total = target_steps if target_steps is not None else until
     bar = Progress(total, "steps" if target_steps is not None else "s", scene.run.log_every, enabled=progress)
     t_loop = time.perf_counter()
     try:
-        while True:
+        while interrupted is None:
             if target_steps is not None and sim.step_index >= target_steps:
                 break
             if until is not None and sim.t >= until * (1 - 1e-12):
@@ -201,9 +225,14 @@ def advance(sim: Simulation, halo, scene: Scene, steps: int | None, until: float
             steps_in_loop += 1
             rate = sim.n_particles * steps_in_loop / (now - t_loop)
             bar.update(sim.step_index if target_steps is not None else sim.t, sim.step_index, sim, rate)
+            if stop is not None:
+                interrupted = stop()
     finally:
         bar.close()
-    return {"steps": steps_in_loop, "wall_s": time.perf_counter() - t_loop, "first_step_s": t_first}
+    loop = {"steps": steps_in_loop, "wall_s": time.perf_counter() - t_loop, "first_step_s": t_first}
+    if interrupted is not None:
+        loop["interrupted"] = interrupted
+    return loop
 
 
 def drive(peer: PeerRun, plan: RunPlan, frames: FrameSink | None = None):
@@ -219,6 +248,10 @@ def drive(peer: PeerRun, plan: RunPlan, frames: FrameSink | None = None):
     root = plan.checkpoint_root if plan.checkpoint_root is not None else (
         plan.out / "checkpoints" if plan.out is not None else None)
     saved = Checkpoints(peer, root, every)
+    if plan.out is not None:  # before the first step: a run that cannot keep its result does not start
+        prepare_output(plan.out)
+        write_summary(plan.out / "summary.json", progress_summary(sim, scene, world, peer.t_start, "running"))
+    last_summary = [time.perf_counter()]
     vtk = None
     if scene.output.vtk_every:
         from sphcore.vtk import VtkWriter  # VTK is loaded only by runs that write it
@@ -244,10 +277,13 @@ def drive(peer: PeerRun, plan: RunPlan, frames: FrameSink | None = None):
             vtk.write(sim, block_box())
         if frames is not None:
             frames.show(sim)
+        if plan.out is not None and time.perf_counter() - last_summary[0] >= plan.summary_every_s:
+            write_summary(plan.out / "summary.json", progress_summary(sim, scene, world, peer.t_start, "running"))
+            last_summary[0] = time.perf_counter()
 
     try:
         loop = yield from advance(sim, halo, scene, plan.steps, plan.until, plan.progress and rank == 0,
-                                  on_step=on_step)
+                                  on_step=on_step, stop=plan.stop)
     finally:
         if frames is not None:
             frames.close()
@@ -267,6 +303,11 @@ def drive(peer: PeerRun, plan: RunPlan, frames: FrameSink | None = None):
         summary["checkpoints"] = saved.record
     if plan.restarts is not None:
         summary["restarts"] = plan.restarts
+    summary["status"] = "complete"
+    if "interrupted" in loop:  # stopped by a signal at the end of a step: the state is that step's
+        summary["status"] = "interrupted"
+        summary["interrupted"] = {"signal": loop["interrupted"], "step": step}
+        arrays = dict(arrays, interrupted_step=np.array(step, dtype=np.int64))
     shown = frames.summary() if frames is not None else None
     if shown is not None:
         summary["viewer"] = shown
@@ -414,6 +455,15 @@ def write_outputs(out: Path, resolved: dict, final: dict, summary: dict):
     write_scene(out / "scene.toml", resolved)
     write_final(out / "final.npz", final)
     write_summary(out / "summary.json", summary)
+
+
+def progress_summary(sim: Simulation, scene: Scene, world: int, t_start: float, status: str) -> dict:
+    """summary.json while the run goes on (written at the start and every RunPlan.summary_every_s):
+    where it is; the full summary replaces it at the end."""
+    return {"status": status, "scene": scene.scene.name, "source": scene.source, "version": __version__,
+            "particles": sim.n_particles, "peers": world, "steps": sim.step_index, "sim_time": sim.t,
+            "dt": {"last": sim.dt}, "wall_s": time.perf_counter() - t_start, "backend": sim.backend,
+            "precision": sim.precision, "leaks": sim.leaks, "updated": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
 
 
 def make_summary(sim: Simulation, scene: Scene, loop: dict, t_setup: float, wall_total: float) -> dict:

@@ -5,7 +5,8 @@ Layout (one folder per checkpoint, under OUT/checkpoints/):
     step_00000300/peer_0000.npz     a peer's owned particles: id, x, v, m (its dtype)
     step_00000300/peer_0001.npz     ...one file per peer of the run that wrote it
     step_00000300/manifest.json     format, step, t, dt, dt_prev, counters, precision, the resolved
-                                    scene, the parts with their particle counts and SHA-256
+                                    scene and its SHA-256, the parts with their particle counts and
+                                    SHA-256 (every field checked on load: MANIFEST_SCHEMA)
     latest                          the name of the newest complete checkpoint folder
 
 Everything a step carries to the next is saved: positions, velocities (half-step velocities for
@@ -26,6 +27,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import re
 import shutil
@@ -34,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sphcore.state import CARRIED, EXTRA_PREFIX, ParticleState, is_carried, merge_by_id
+from sphcore.state import CARRIED, EXTRA_PREFIX, ROW_SHAPE, ParticleState, is_carried, merge_by_id
 
 FORMAT = "sphfluid-checkpoint-1"
 
@@ -155,6 +157,13 @@ def sim_info(sim) -> dict:
             "particles": sim.n_particles}
 
 
+def scene_digest(scene_dict: dict) -> str:
+    """SHA-256 of a resolved scene's canonical JSON: a manifest whose scene was edited (a changed
+    gravity would run on without a word) no longer matches it."""
+    text = json.dumps(scene_dict, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
 def commit(root: Path, step: int, info: dict, scene_dict: dict, parts: list[dict], keep: int = 2):
     """All parts of ``step`` are written: add the manifest, rename the folder into place, point
     ``latest`` at it and remove all but the newest ``keep`` checkpoints. CheckpointWriteError if
@@ -162,7 +171,7 @@ def commit(root: Path, step: int, info: dict, scene_dict: dict, parts: list[dict
     root = Path(root)
     folder = staging(root, step)
     final = root / folder_name(step)
-    manifest = dict(info, format=FORMAT, scene=scene_dict, parts=parts)
+    manifest = dict(info, format=FORMAT, scene=scene_dict, scene_sha256=scene_digest(scene_dict), parts=parts)
     text = json.dumps(manifest, indent=1) + "\n"
     path = folder / "manifest.json"
     try:
@@ -237,6 +246,105 @@ def latest(path: Path) -> tuple[Path, int] | None:
         return None
 
 
+def _integer(lo: int):
+    def check(v):
+        return isinstance(v, int) and not isinstance(v, bool) and v >= lo
+    return check, f"an integer >= {lo}"
+
+
+def _number(lo: float, hi: float = math.inf, lo_open: bool = False):
+    def check(v):
+        return (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                and (v > lo if lo_open else v >= lo) and v <= hi)
+    return check, f"a finite number in {'(' if lo_open else '['}{lo:g}, {hi:g}]"
+
+
+def _limit_counts(v):
+    from sphcore.timestep import LIMITS
+    return isinstance(v, dict) and all(k in LIMITS and _integer(0)[0](n) for k, n in v.items())
+
+
+def _last_limit(v):
+    from sphcore.timestep import LIMITS
+    return v == "" or v in LIMITS
+
+
+_HEX64 = re.compile(r"^[0-9a-f]{64}$")
+
+# Every field of manifest.json: (check, what is allowed). A manifest with a field missing, of
+# another type or out of range is refused naming the field, its value and what is allowed.
+MANIFEST_SCHEMA = {
+    "step": _integer(0),
+    "t": _number(0.0),
+    "dt": _number(0.0, 1.0, lo_open=True),           # time.dt's range: a step of 0 never advances
+    "dt_prev": _number(0.0, 1.0),
+    "leaks": _integer(0),
+    "max_neighbours": _integer(0),
+    "max_compression": _number(-math.inf),
+    "limit_counts": (_limit_counts, "an object of time-step limit names to integers >= 0"),
+    "last_limit": (_last_limit, "a time-step limit name or \"\""),
+    "precision": (lambda v: v in ("f32", "f64"), "'f32' or 'f64'"),
+    "particles": _integer(1),
+    "scene": (lambda v: isinstance(v, dict), "an object (the resolved scene)"),
+    "scene_sha256": (lambda v: isinstance(v, str) and bool(_HEX64.match(v)), "64 hexadecimal digits"),
+}
+
+
+def _short(value, limit: int = 60) -> str:
+    try:
+        text = json.dumps(value)
+    except (ValueError, RecursionError):
+        text = repr(type(value))
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def check_manifest(manifest, where: str):
+    """The manifest's schema (MANIFEST_SCHEMA, format, parts); CheckpointError names the field."""
+    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
+        found = manifest.get("format") if isinstance(manifest, dict) else type(manifest).__name__
+        raise CheckpointError(f"{where}: format {found!r}, this version reads {FORMAT!r}")
+    for name, (check, allowed) in MANIFEST_SCHEMA.items():
+        if name not in manifest:
+            raise CheckpointError(f"{where}: {name} is missing (expected {allowed})")
+        if not check(manifest[name]):
+            raise CheckpointError(f"{where}: {name} = {_short(manifest[name])}: expected {allowed}")
+    if scene_digest(manifest["scene"]) != manifest["scene_sha256"]:
+        raise CheckpointError(f"{where}: the scene does not match its scene_sha256 (edited after the run wrote "
+                              "it?); a changed scene would not continue the run it claims to")
+    entries = manifest.get("parts")
+    if not (isinstance(entries, list) and entries and all(
+            isinstance(e, dict) and isinstance(e.get("file"), str) and is_part_name(e["file"])
+            and isinstance(e.get("sha256"), str) and _integer(0)[0](e.get("particles")) for e in entries)):
+        raise CheckpointError(f"{where}: 'parts' must list the parts as "
+                              "{file: peer_NNNN.npz, particles: integer >= 0, sha256}")
+    if len({e["file"] for e in entries}) != len(entries):
+        raise CheckpointError(f"{where}: 'parts' lists a part twice")
+
+
+def _check_part(part: dict, entry: dict, folder: Path, dtype):
+    """A part's arrays: the carried ones present, of the manifest's precision, one row per particle,
+    finite, positive masses."""
+    name = entry["file"]
+    missing = [k for k in CARRIED if k not in part]
+    if missing:
+        raise CheckpointError(f"{folder}: part {name} has no {missing[0]!r} array (a part holds "
+                              f"{', '.join(CARRIED)})")
+    n = len(part["id"]) if part["id"].ndim == 1 else -1
+    if part["id"].dtype != np.int64 or n < 0:
+        raise CheckpointError(f"{folder}: part {name}: 'id' is {part['id'].dtype} {part['id'].shape}, expected int64 (n,)")
+    for key, values in part.items():
+        if key == "id":
+            continue
+        want = (n,) + ROW_SHAPE[key] if key in ROW_SHAPE else None
+        if values.shape[:1] != (n,) or (want is not None and values.shape != want) or values.dtype != dtype:
+            raise CheckpointError(f"{folder}: part {name}: {key!r} is {values.dtype} {values.shape}, expected "
+                                  f"{np.dtype(dtype).name} {want or (n, '...')}")
+        if not np.isfinite(values).all():
+            raise CheckpointError(f"{folder}: part {name}: {key!r} holds non-finite values")
+    if np.any(part["m"] <= 0):
+        raise CheckpointError(f"{folder}: part {name}: 'm' holds masses <= 0")
+
+
 def load(path: Path) -> Checkpoint:
     """Read and check a checkpoint; CheckpointError says what is wrong."""
     folder = resolve(path)
@@ -244,15 +352,9 @@ def load(path: Path) -> Checkpoint:
         manifest = json.loads((folder / "manifest.json").read_text())
     except (OSError, ValueError, RecursionError) as e:
         raise CheckpointError(f"{folder}/manifest.json: unreadable ({str(e)[:200]})") from None
-    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
-        found = manifest.get("format") if isinstance(manifest, dict) else type(manifest).__name__
-        raise CheckpointError(f"{folder}: format {found!r}, this version reads {FORMAT!r}")
-    entries = manifest.get("parts")
-    if not (isinstance(entries, list) and entries and all(
-            isinstance(e, dict) and isinstance(e.get("file"), str) and is_part_name(e["file"])
-            and isinstance(e.get("sha256"), str) for e in entries)):
-        raise CheckpointError(f"{folder}/manifest.json: 'parts' must list the parts as "
-                              "{file: peer_NNNN.npz, particles, sha256}")
+    check_manifest(manifest, f"{folder}/manifest.json")
+    entries = manifest["parts"]
+    dtype = {"f32": np.float32, "f64": np.float64}[manifest["precision"]]
     parts = []
     for entry in entries:
         p = folder / entry["file"]  # a bare peer_NNNN.npz (checked above): never outside the folder
@@ -260,8 +362,15 @@ def load(path: Path) -> Checkpoint:
             raise CheckpointError(f"{folder}: part {entry['file']} is missing")
         if _sha256(p) != entry["sha256"]:
             raise CheckpointError(f"{folder}: part {entry['file']} is corrupt (checksum mismatch)")
-        with np.load(p) as z:
-            part = {k: z[k] for k in z.files if is_carried(k)}
+        try:
+            with np.load(p, allow_pickle=False) as z:
+                part = {k: z[k] for k in z.files if is_carried(k)}
+        except (OSError, ValueError, EOFError, KeyError) as e:  # not a zip, a bad member, a pickled array
+            raise CheckpointError(f"{folder}: part {entry['file']} is unreadable ({str(e)[:120]})") from None
+        _check_part(part, entry, folder, dtype)
+        if set(part) != set(parts[0] if parts else part):
+            raise CheckpointError(f"{folder}: part {entry['file']} holds other arrays than the first part "
+                                  f"({', '.join(sorted(part))})")
         if len(part["id"]) != entry["particles"]:
             raise CheckpointError(f"{folder}: part {entry['file']} holds {len(part['id'])} particles, the "
                                   f"manifest says {entry['particles']}")
@@ -270,9 +379,6 @@ def load(path: Path) -> Checkpoint:
     if len(arrays["id"]) != manifest["particles"] or np.any(np.diff(arrays["id"]) <= 0):
         raise CheckpointError(f"{folder}: {len(arrays['id'])} particles with duplicates or gaps; the run had "
                               f"{manifest['particles']}")
-    dtype = {"f32": np.float32, "f64": np.float64}[manifest["precision"]]
-    if arrays["x"].dtype != dtype:
-        raise CheckpointError(f"{folder}: arrays are {arrays['x'].dtype}, the manifest says {manifest['precision']}")
     return Checkpoint(folder, manifest, arrays)
 
 
@@ -280,8 +386,9 @@ def restore(sim, ckpt: Checkpoint):
     """Put the checkpoint's particles and step state into a freshly built Simulation of its scene."""
     a, m = ckpt.arrays, ckpt.manifest
     if len(a["id"]) != sim.n_particles or not np.array_equal(a["id"], np.sort(sim.state.id)):
-        raise CheckpointError(f"{ckpt.path}: its particles do not match the scene's ({len(a['id'])} vs "
-                              f"{sim.n_particles})")
+        raise CheckpointError(f"{ckpt.path}: its particles do not match its scene (the checkpoint holds "
+                              f"{len(a['id'])} particles, the scene makes {sim.n_particles}"
+                              f"{'' if len(a['id']) != sim.n_particles else ' with other ids'})")
     carried = {name: a[name] for name in CARRIED}
     for name, values in sim.state.extra.items():  # what this solver carries (zeros if the file lacks it)
         key = EXTRA_PREFIX + name
