@@ -31,6 +31,7 @@ import math
 import os
 import re
 import shutil
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -365,7 +366,7 @@ def load(path: Path) -> Checkpoint:
         try:
             with np.load(p, allow_pickle=False) as z:
                 part = {k: z[k] for k in z.files if is_carried(k)}
-        except (OSError, ValueError, EOFError, KeyError) as e:  # not a zip, a bad member, a pickled array
+        except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as e:  # not a zip, a bad member, pickled
             raise CheckpointError(f"{folder}: part {entry['file']} is unreadable ({str(e)[:120]})") from None
         _check_part(part, entry, folder, dtype)
         if set(part) != set(parts[0] if parts else part):

@@ -498,9 +498,15 @@ def load_scene(path: str | Path, overrides: list[str] = ()) -> Scene:
     for text_ in overrides:
         p, v = parse_override(text_)
         apply_override(data, p, v, text_)
-    scene = scene_from_dict(data, source=str(path))
-    if written_dim is not None and scene.dim != written_dim:
-        _check_dim_change(scene, written_dim, path)
+    new_dim = _written_dim(data)
+    if written_dim is None or new_dim is None or new_dim == written_dim:
+        return scene_from_dict(data, source=str(path))
+    prefix = f"--set scene.dim={new_dim} on {path}, written for {written_dim}D"
+    try:
+        scene = scene_from_dict(data, source=str(path))
+    except SceneError as e:  # 2D -> 3D: a 2-component vector the overrides did not replace
+        raise SceneError(f"{prefix}: {e}") from None
+    _check_dim_change(scene, prefix)
     return scene
 
 
@@ -510,16 +516,16 @@ def _written_dim(data: dict):
     return dim if dim in (2, 3) and not isinstance(dim, bool) else None
 
 
-def _check_dim_change(scene: Scene, written_dim: int, path: Path):
-    """--set scene.dim=2 on a scene written for 3D: refused if any vector has a z component the 2D
-    run would drop (2D -> 3D needs every vector given in 3 components, which validation checks)."""
+def _check_dim_change(scene: Scene, prefix: str):
+    """A 3D scene run in 2D (--set scene.dim=2) drops every z: refused while any vector of it has a
+    z component (tiny.toml's 498 particles would become 57), so a 2D run of it needs every vector
+    overridden as well. 2D -> 3D needs every vector in 3 components, which validation checks."""
     if scene.dim != 2:
         return
     for key, value in _vectors(scene):
-        if len(value) == 3 and value[2]:
-            raise SceneError(f"--set scene.dim=2: {path} is written for {written_dim}D and {key} = "
-                             f"{_toml_value(value)} has a z component a 2D run would drop; write a 2D scene "
-                             "(2-component vectors) instead of changing scene.dim")
+        if value[2]:
+            raise SceneError(f"{prefix}: {key} = {_toml_value(value)} has a z component a 2D run would drop; "
+                             "write a 2D scene (e.g. configs/dam_break_2d.toml) instead of changing scene.dim")
 
 
 def _vectors(scene: Scene):

@@ -109,17 +109,25 @@ def test_resume_refuses_a_scene_overrides_and_other_precision(saved, capsys):
     assert "no checkpoint here" in capsys.readouterr().err
 
 
+def _real_manifest_with(**changes):
+    """The real manifest with some fields changed (so that only they are wrong)."""
+    def edit(text):
+        return json.dumps(dict(json.loads(text), **changes))
+    return edit
+
+
 @pytest.mark.parametrize("manifest, fragment", [
-    ("[1, 2]", "format 'list'"),
-    ("[" * 100000 + "]" * 100000, "unreadable"),
-    ('{"format": "sphfluid-checkpoint-1"}', "'parts' must list the parts"),
-    ('{"format": "sphfluid-checkpoint-1", "parts": [{"file": "../../peer_0000.npz", "sha256": "0"}]}',
+    (lambda text: "[1, 2]", "format 'list'"),
+    (lambda text: "[" * 100000 + "]" * 100000, "unreadable"),
+    (lambda text: '{"format": "sphfluid-checkpoint-1"}', "step is missing"),
+    (_real_manifest_with(parts=[{"file": "../../peer_0000.npz", "particles": 1, "sha256": "0"}]),
      "'parts' must list the parts"),
-    ('{"format": "sphfluid-checkpoint-1", "parts": [{"file": "/etc/passwd", "sha256": "0"}]}',
+    (_real_manifest_with(parts=[{"file": "/etc/passwd", "particles": 1, "sha256": "0"}]),
      "'parts' must list the parts"),
-])
+], ids=["list", "nested", "only-format", "part-path-up", "part-path-absolute"])
 def test_a_hostile_manifest_is_refused_without_reading_outside_the_checkpoint(saved, capsys, manifest, fragment):
-    (saved / "step_00000020" / "manifest.json").write_text(manifest)
+    path = saved / "step_00000020" / "manifest.json"
+    path.write_text(manifest(path.read_text()))
     assert resume(saved / "step_00000020") == 2
     err = capsys.readouterr().err
     assert fragment in err and "Traceback" not in err, err
