@@ -444,8 +444,7 @@ def main(argv: list[str] | None = None) -> int:
                 raise UsageError(f"validate --set {spacing[0]}: each case sets its own spacing (full, or --quick); "
                                  "the metrics' reference depends on it")
             if args.backend == "cuda":
-                from sphcore.backends import cuda
-                cuda.require()
+                _require_cuda()
             return run_validate(names, args.quick, args.out, args.backend, tuple(args.overrides))
         if args.command == "study":
             from launch.study import CASES as STUDY_CASES, run_study
@@ -547,10 +546,28 @@ def _check_backend(args):
     if getattr(args, "device", None) is not None and args.backend != "cuda":
         raise UsageError(f"--device {args.device}: only with --backend cuda")
     if args.backend == "cuda":
-        from sphcore.backends import cuda
-        cuda.require()
+        _require_cuda()
         if args.threads:
             raise UsageError("--threads: the CUDA backend runs on the GPU; give no --threads")
+
+
+CUDA_EXTRA = ("the CUDA packages (numba-cuda, the CUDA runtime, NVVM, NVRTC) are the sphfluid[cuda] extra, not "
+              "installed here: pip install 'sphfluid[cuda]' (in a checkout: pip install -e '.[cuda]')")
+
+
+def _require_cuda():
+    """sphcore.backends.cuda.require(), naming the [cuda] extra when its packages are missing."""
+    import importlib.util
+
+    from sphcore.backends import BackendUnavailable
+    extra_missing = importlib.util.find_spec("numba_cuda") is None
+    try:
+        from sphcore.backends import cuda
+        cuda.require()
+    except (BackendUnavailable, ImportError) as e:
+        if not extra_missing:
+            raise
+        raise UsageError(f"--backend cuda: {CUDA_EXTRA} ({e})") from None
 
 
 def _output_folder(args, scene) -> Path:
@@ -578,8 +595,7 @@ def _check_bench(args):
         if t < 1 or t > threads_available:
             raise UsageError(f"--threads {t}: this machine allows 1..{threads_available}")
     if args.backend == "cuda":
-        from sphcore.backends import cuda
-        cuda.require()
+        _require_cuda()
         if args.external or args.peers != [1]:
             raise UsageError("--backend cuda: --external and --peers compare CPU runs; run them without it")
 

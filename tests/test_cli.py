@@ -5,6 +5,7 @@ Everything goes through ``launch.cli.main([...])`` in-process, except one real r
 """
 import dataclasses
 import json
+import re
 import subprocess
 import sys
 import tomllib
@@ -271,3 +272,94 @@ def test_no_command_is_a_usage_error(capsys):
         main([])
     assert exc.value.code == 2
     assert "COMMAND" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------------------------------
+# Help texts and flag names (issue 21)
+# ---------------------------------------------------------------------------------------------
+
+def _subparsers():
+    import argparse
+
+    from launch.cli import build_parser
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return sub.choices
+
+
+@pytest.mark.fast
+@pytest.mark.parametrize("command", sorted(_subparsers()))
+def test_every_option_of_every_command_has_help_and_states_its_default_once(command, capsys):
+    import argparse
+    parser = _subparsers()[command]
+    for action in parser._actions:
+        if action.help == argparse.SUPPRESS or isinstance(action, argparse._HelpAction):
+            continue
+        assert action.help, f"sph {command} {action.option_strings or action.dest}: no help"
+        assert action.help.count("(default") <= 1, f"sph {command} {action.option_strings}: {action.help}"
+    assert parser.formatter_class is argparse.HelpFormatter  # no argparse default after the author's own
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "(default: None)" not in text and ") (default" not in text, text
+
+
+@pytest.mark.fast
+@pytest.mark.parametrize("command", ["peer", "viewer", "control"])
+def test_zenoh_endpoints_are_zenoh_and_the_old_connect_still_works_with_a_deprecation(command, capsys):
+    from launch.cli import build_parser
+    required = {"peer": ["--rank", "0", "--world", "1", "--run-id", "r"], "viewer": ["x.toml", "--run-id", "r"],
+                "control": ["--run-id", "r", "pause"]}[command]
+    new = build_parser().parse_args([command, *required, "--zenoh", "tcp/127.0.0.1:7447"])
+    assert new.zenoh == ["tcp/127.0.0.1:7447"]
+    assert "deprecated" not in capsys.readouterr().err
+    old = build_parser().parse_args([command, *required, "--connect", "tcp/127.0.0.1:7447", "--connect",
+                                     "tcp/127.0.0.1:7448"])
+    assert old.zenoh == ["tcp/127.0.0.1:7447", "tcp/127.0.0.1:7448"]
+    err = capsys.readouterr().err
+    assert err.count("--connect is deprecated here, use --zenoh") == 1, err
+
+
+@pytest.mark.fast
+def test_run_connect_is_still_the_rerun_url():
+    from launch.cli import build_parser
+    args = build_parser().parse_args(["run", TINY, "--connect", "rerun+http://127.0.0.1:9876/proxy"])
+    assert args.rerun_url == "rerun+http://127.0.0.1:9876/proxy"
+
+
+@pytest.mark.fast
+@pytest.mark.parametrize("text,fragment", [
+    (None, "cannot read it"),
+    ("{", "not JSON"),
+    ('{"run_id": "r", "world": 0, "endpoints": ["tcp/127.0.0.1:1"], "tls": null}', "expected {run_id"),
+    ('{"run_id": "r", "world": 2, "endpoints": [], "tls": null}', "expected {run_id"),
+])
+def test_control_out_dir_with_a_bad_run_json_exits_2(text, fragment, tmp_path, capsys):
+    if text is not None:
+        (tmp_path / "run.json").write_text(text)
+    assert main(["control", str(tmp_path), "pause"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("sph control: error: ") and fragment in err and "Traceback" not in err, err
+
+
+@pytest.mark.fast
+def test_control_without_a_run_says_how_to_name_one(capsys):
+    assert main(["control", "pause"]) == 2
+    assert "sph control OUT_DIR COMMAND" in capsys.readouterr().err
+
+
+@pytest.mark.fast
+def test_control_out_dir_reads_the_run_from_run_json(tmp_path, capsys):
+    # Given the run.json of an --insecure run whose rank 0 is gone (a port nobody listens on)
+    from launch.local import free_ports, write_run_info
+
+    class Args:
+        tls_dir = None
+    endpoint = f"tcp/127.0.0.1:{free_ports(1)[0]}"
+    write_run_info(tmp_path, "abc123", 2, [endpoint, "tcp/127.0.0.1:1"], Args())
+    # When sph control is given only the folder
+    rc = main(["control", "--timeout", "0.5", str(tmp_path), "pause"])
+    # Then it looked for run abc123 at rank 0's endpoint (and found nobody: exit 4)
+    err = capsys.readouterr().err
+    assert rc == 4
+    assert "no run 'abc123' is listening at " + endpoint in err, err

@@ -276,3 +276,44 @@ def test_the_good_checkpoint_of_the_corpus_resumes(good_checkpoint, tmp_path):
     assert main(["run", "--resume", str(folder), "--steps", "3", "--out", str(out), "--quiet", "--no-viewer"]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["steps"] == 3 and summary["status"] == "complete"
+
+
+# ---------------------------------------------------------------------------------------------
+# A run keeps what it did: summary.json from the start, the outputs on SIGTERM / Ctrl-C
+# ---------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("signal_name", ["SIGTERM", "SIGINT"])
+def test_a_stopped_run_writes_its_outputs_marked_interrupted_with_the_step(signal_name, tmp_path):
+    import os
+    import signal
+    import time
+    # Given a long run of tiny.toml
+    out = tmp_path / "out"
+    sph = Path(sys.executable).with_name("sph")
+    proc = subprocess.Popen([str(sph), "run", str(TINY), "--steps", "10000000", "--out", str(out), "--no-viewer",
+                             "--quiet"], cwd=ROOT, stderr=subprocess.PIPE, text=True,
+                            env=dict(os.environ, NUMBA_NUM_THREADS="1"))
+    try:
+        # When summary.json says it is running (written before the first step) and then it is stopped
+        deadline = time.monotonic() + 240
+        while not (out / "summary.json").exists():
+            assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read() if proc.poll() else ""
+            time.sleep(0.2)
+        assert json.loads((out / "summary.json").read_text())["status"] == "running"
+        time.sleep(3)  # past the first (compiling) step
+        proc.send_signal(getattr(signal, signal_name))
+        err = proc.communicate(timeout=120)[1]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    # Then it exits 130 with the outputs of the step it stopped at, marked interrupted
+    assert proc.returncode == 130, err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "interrupted"
+    assert summary["interrupted"] == {"signal": signal_name, "step": summary["steps"]}
+    assert 0 < summary["steps"] < 10000000
+    with np.load(out / "final.npz") as f:
+        assert int(f["interrupted_step"]) == summary["steps"]
+        assert len(f["id"]) == summary["particles"] == 498
+    assert (out / "scene.toml").is_file()
+    assert "Traceback" not in err and f"interrupted ({signal_name}) at step {summary['steps']}" in err
