@@ -317,3 +317,14 @@ def test_a_stopped_run_writes_its_outputs_marked_interrupted_with_the_step(signa
         assert len(f["id"]) == summary["particles"] == 498
     assert (out / "scene.toml").is_file()
     assert "Traceback" not in err and f"interrupted ({signal_name}) at step {summary['steps']}" in err
+
+
+@pytest.mark.fast
+def test_the_tutorial_scene_checks_as_the_tutorial_says(capsys):
+    # docs/TUTORIAL.md quotes this summary and this error
+    assert main(["scene", str(ROOT / "docs" / "tutorial" / "splash.toml")]) == 0
+    out = capsys.readouterr().out
+    assert "fluid.blocks[0] box    600 particles" in out and "particles     680 " in out
+    assert main(["scene", str(ROOT / "docs" / "tutorial" / "splash.toml"), "--set",
+                 "fluid.blocks[0].max=[0.8, 0.1]"]) == 2
+    assert "200 of its 800 particles fall outside the domain" in capsys.readouterr().err
