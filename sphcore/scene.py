@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import json
 import math
 import os
 import tomllib
@@ -487,7 +488,7 @@ def read_scene_file(path: str | Path) -> dict:
     except ValueError as e:  # TOMLDecodeError, or an integer longer than int_max_str_digits
         raise SceneError(f"{path}: not valid TOML: {e}") from None
     except RecursionError:
-        raise SceneError(f"{path}: not valid TOML here: arrays or tables nested too deeply") from None
+        raise SceneError(f"{path}: not a scene: its arrays or tables are nested too deeply to read") from None
 
 
 def load_scene(path: str | Path, overrides: list[str] = ()) -> Scene:
@@ -884,6 +885,8 @@ def _toml_exact(v) -> str:
     """A TOML value that reads back to exactly ``v`` (floats by repr, not rounded like _toml_value)."""
     if isinstance(v, float):
         return repr(v)
+    if isinstance(v, str):  # JSON's escapes are TOML's; DEL is the one control character JSON leaves raw
+        return json.dumps(v).replace("\x7f", "\\u007f")
     if isinstance(v, (tuple, list)):
         return "[" + ", ".join(_toml_exact(e) for e in v) + "]"
     return _toml_value(v)

@@ -11,7 +11,7 @@ import tomllib
 import pytest
 import tomli_w
 
-from sphcore.scene import SceneError, load_scene, parse_override, scene_from_dict
+from sphcore.scene import SceneError, load_scene, parse_override, scene_from_dict, scene_toml
 
 from conftest import CONFIGS
 
@@ -359,3 +359,20 @@ def test_decomposition_dims_are_all_set_or_all_zero(value, message):
     with pytest.raises(SceneError, match=message):
         load_scene(CONFIGS / "tiny.toml", [f"decomposition.dims={value}"])
     assert load_scene(CONFIGS / "tiny.toml", ["decomposition.dims=[2, 1, 1]"]).decomposition.dims == (2, 1, 1)
+
+
+@pytest.mark.parametrize("path", CONFIG_FILES, ids=CONFIG_IDS)
+def test_scene_toml_reads_back_to_the_same_scene_with_one_line_per_key(path):
+    scene = load_scene(path, ['scene.description="a \\"quoted\\" \\\\ word\\u007f\\n é"', "forces.ramp_time=0.0123456789"])
+    text = scene_toml(scene.to_dict())
+    again = scene_from_dict(tomllib.loads(text), source=scene.source)
+    assert again == scene
+    assert all(" = " in line or line.startswith("[") or not line for line in text.splitlines())
+
+
+def test_a_misspelled_key_gets_the_close_name():
+    with pytest.raises(SceneError, match=r"unknown key 'time.integrater' \(did you mean 'integrator'\?\)"):
+        load_scene(CONFIGS / "tiny.toml", ["time.integrater=leapfrog"])
+    with pytest.raises(SceneError) as e:
+        load_scene(CONFIGS / "tiny.toml", ["time.zzz=1"])
+    assert "did you mean" not in str(e.value)
