@@ -492,7 +492,8 @@ def _cmd_scene(args) -> int:
         lines.append(f"  fluid.blocks[{i}] {block.shape:6s} {n} particles{' (clip = true)' if block.clip else ''}")
     lines += [
         f"  particles     {report['particles']} (spacing {dx:g} m, at most {scene.particles.max_particles})",
-        f"  memory        about {size_text(report['memory'])} in one process ({report['cells']:.3g} grid cells)",
+        f"  memory        about {size_text(report['memory'])} of arrays in one process ({report['cells']:.3g} grid "
+        "cells; Python and its libraries: ~260 MB more)",
         f"  neighbours    about {report['neighbours']} per particle in the bulk (support {scene.sph.support:g} "
         f"spacings, {scene.sph.kernel})",
         f"  first dt      {report['dt']:.3g} s ({report['dt_limit']} limit; time.mode = {scene.time.mode}, "
