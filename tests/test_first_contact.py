@@ -328,3 +328,31 @@ def test_the_tutorial_scene_checks_as_the_tutorial_says(capsys):
     assert main(["scene", str(ROOT / "docs" / "tutorial" / "splash.toml"), "--set",
                  "fluid.blocks[0].max=[0.8, 0.1]"]) == 2
     assert "200 of its 800 particles fall outside the domain" in capsys.readouterr().err
+
+
+def test_summary_json_is_rewritten_while_the_run_goes_on(tmp_path, monkeypatch):
+    # Given a one-process run that rewrites its summary after every step (summary_every_s = 0)
+    from nodes import driver
+    from nodes.transport import InProcessNetwork
+    from sphcore.halo import NULL_HALO
+    from sphcore.scene import load_scene
+    from sphcore.solver import Simulation
+    written = []
+    real = driver.write_summary
+
+    def record(path, summary):
+        real(path, summary)  # the atomic write of sphcore/output.py
+        written.append((summary["status"], summary["steps"], json.loads(path.read_text())["status"]))
+
+    monkeypatch.setattr(driver, "write_summary", record)
+    scene = load_scene(TINY)
+    sim = Simulation(scene, "f64")
+    peer = driver.PeerRun(sim, scene, NULL_HALO, InProcessNetwork().endpoint(0))
+    plan = driver.RunPlan(steps=3, out=tmp_path / "out", progress=False, summary_every_s=0.0)
+    # When it runs 3 steps
+    summary = driver.run_blocking(driver.drive(peer, plan))
+    # Then summary.json said "running" before the first step and after each, then "complete"
+    assert written == [("running", 0, "running"), ("running", 1, "running"), ("running", 2, "running"),
+                       ("running", 3, "running"), ("complete", 3, "complete")]
+    assert summary["status"] == "complete"
+    assert not list((tmp_path / "out").glob(".*"))  # no temporary or probe file left behind
