@@ -531,7 +531,7 @@ def _cmd_examples(args) -> int:
         except SceneError as e:
             line = f"(not a valid scene: {e})"
         print(f"{str(f):{width}s}  {line}")
-    print(f"(sph scene FILE: particles, memory and time step; sph run FILE --out runs/NAME: run it)")
+    print("(sph scene FILE: particles, memory and time step; sph run FILE --out runs/NAME: run it)")
     return 0
 
 

@@ -5,7 +5,6 @@ Everything goes through ``launch.cli.main([...])`` in-process, except one real r
 """
 import dataclasses
 import json
-import re
 import subprocess
 import sys
 import tomllib
