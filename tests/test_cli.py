@@ -362,3 +362,24 @@ def test_control_out_dir_reads_the_run_from_run_json(tmp_path, capsys):
     err = capsys.readouterr().err
     assert rc == 4
     assert "no run 'abc123' is listening at " + endpoint in err, err
+
+
+@pytest.mark.fast
+def test_backend_cuda_without_the_extra_names_it(monkeypatch, tmp_path, capsys):
+    # Given a machine without the CUDA packages (numba_cuda not importable) and so no usable GPU
+    import importlib.util
+
+    from sphcore.backends import cuda
+    real_find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "numba_cuda"
+                        else real_find_spec(name, *a))
+
+    def no_gpu(device=None):
+        raise cuda.CudaUnavailable("--backend cuda: no CUDA driver or GPU found")
+    monkeypatch.setattr(cuda, "require", no_gpu)
+    # When a run asks for the GPU backend
+    rc = main(["run", TINY, "--backend", "cuda", "--out", str(tmp_path / "out"), "--quiet"])
+    # Then the one line says which extra to install, and nothing is written
+    err = capsys.readouterr().err
+    assert rc == 2 and "sphfluid[cuda]" in err and "pip install" in err, err
+    assert not (tmp_path / "out").exists()
