@@ -272,6 +272,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     control = sub.add_parser(
         "control", help="pause/resume a running run, switch its camera or change safe parameters",
+        usage="sph control [-h] [--run-id ID --zenoh ENDPOINT --world N] [--timeout S] [--tls DIR | --insecure] "
+              "[OUT_DIR] COMMAND [ARG ...]",
         description="Send a command to a running multi-peer run (connect to rank 0's endpoint) and wait for rank "
                     "0's answer: 'accepted at step N' (every peer applies it after step N, and the viewer records "
                     "it; exit 0) or 'rejected: REASON' (exit 2); no answer within --timeout exits 4. Commands: "
@@ -287,7 +289,7 @@ def build_parser() -> argparse.ArgumentParser:
     control.add_argument("--timeout", type=_positive_float, default=10.0,
                          help="seconds to wait for rank 0 to listen and to answer (default: 10)")
     _add_trust_options(control)
-    control.add_argument("words", nargs="+", metavar="[OUT_DIR] COMMAND",
+    control.add_argument("words", nargs="+", metavar="WORD",
                          help="the run's output folder (its run.json gives --run-id, --zenoh, --world and --tls), "
                               "then the command, e.g. runs/dam_break pause, or set forces.external=[2,0,0]")
 
