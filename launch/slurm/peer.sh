@@ -37,7 +37,7 @@ me=${nodes[$(( rank / per_node ))]}
 args=(--rank "$rank" --world "$world" --run-id "slurm-${SLURM_JOB_ID:-0}" "${security[@]}"
       --listen "$scheme/${SPH_LISTEN_HOST:-$me}:$(( base + local_id ))")
 for (( r = 0; r < rank; r++ )); do   # connect to every lower rank: a full mesh
-    args+=(--connect "$scheme/${nodes[$(( r / per_node ))]}:$(( base + r % per_node ))")
+    args+=(--zenoh "$scheme/${nodes[$(( r / per_node ))]}:$(( base + r % per_node ))")
 done
 if [ -n "${SLURM_CPUS_PER_TASK:-}" ]; then
     args+=(--threads "$SLURM_CPUS_PER_TASK")
