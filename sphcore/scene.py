@@ -734,7 +734,8 @@ def _check_combinations(s: Scene) -> Scene:
 # scratch and the temporaries of generating the lattice and gathering final.npz; the grid holds
 # three int64 arrays per cell (bin starts, cell begin and end). Measured: the peak RSS of the 3D dam
 # break grows by 540 B per particle from 49,152 to 224,720 particles (WCSPH, f64, 3 steps); Python
-# and the libraries add about 260 MB whatever the scene. An estimate, on the high side.
+# and the libraries add about 260 MB whatever the scene. An estimate, on the high side (docs/USAGE.md
+# "sph scene" gives a command that measures it: 476 B per particle when only stepping).
 BYTES_PER_PARTICLE = 600
 BYTES_PER_CELL = 32
 
