@@ -10,8 +10,11 @@ Each step (``Grid.bin``):
 2. counting sort by key (histogram, prefix sum, stable scatter), then within each cell an insertion
    sort by global ``id`` — rows end up ordered by (cell, id), whatever order they came in;
 3. all persistent particle arrays are reordered to that order (locality for the passes);
-4. the neighbour list of every owned particle is built by scanning neighbour cells in a fixed order
-   (z, then y, then x; the three x-neighbours of a row are contiguous in memory).
+4. with neighbour lists (``NEIGHBOUR_LISTS``), the list of every owned particle is built by scanning
+   neighbour cells in a fixed order (z, then y, then x; the three x-neighbours of a row are contiguous
+   in memory). With the cell walk (``CELL_WALK``) nothing is built: every neighbour pass visits the
+   same cells in the same order itself (``home_cell``, ``cell_span``), reading ``cell_begin`` and
+   ``cell_end``, so its candidates arrive in the order the list would hold them.
 
 Summing in this order is what makes a run reproducible bit for bit, and what lets a distributed
 run (ghost rows included) reproduce a single-process run exactly.
@@ -20,12 +23,40 @@ Periodic axes wrap cell indices and use minimum-image distances; along them the 
 stretched to L / floor(L / H) so the cells tile the period exactly (at least 3 cells are required).
 """
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import literally, njit, prange
 
 from sphcore.backends.literal import literal_dispatch
 from sphcore.state import CARRIED
+
+
+# How a neighbour pass finds its neighbours (the compile-time choice ``neighbours``, stages.CHOICES)
+NEIGHBOUR_LISTS = 0  # read the list Grid.build_neighbours wrote (nbr, counts)
+CELL_WALK = 1        # walk the 27 cells around the row (cells, cell_begin, cell_end); no list is stored
+SPANS = 27           # neighbour cells visited by the walk, z then y then x (in 2D the z layers are empty)
+
+
+class Cells(NamedTuple):
+    """The grid as the cell walk reads it, a row of scalars passed by value (lengths in the run's
+    precision, the same values the list builder reads from the Grid's arrays)."""
+    ox: float    # origin (m)
+    oy: float
+    oz: float
+    sx: float    # cell size (m)
+    sy: float
+    sz: float
+    ux: float    # 1 / cell size (1/m)
+    uy: float
+    uz: float
+    nx: int      # cells per axis
+    ny: int
+    nz: int
+    px: bool     # periodic along the axis
+    py: bool
+    pz: bool
+    H2: float    # squared support radius (m^2), as Grid.H2
 
 
 @njit(inline="always")
@@ -247,6 +278,56 @@ def neighbour_row(periodic, i, x, contiguous, cell_begin, cell_end, origin, cell
     counts[i] = count
 
 
+@njit(cache=True, inline="always")
+def home_cell(x, i, c):
+    """(ix, iy, iz, gap2 to the lower and upper x, y, z faces) of row i's cell: where the walk
+    starts. The same cell and gaps as neighbour_row computes, so the walk visits what the list holds."""
+    xi, yi, zi = x[i, 0], x[i, 1], x[i, 2]
+    ix = min(max(int(math.floor((xi - c.ox) * c.ux)), 0), c.nx - 1)
+    iy = min(max(int(math.floor((yi - c.oy) * c.uy)), 0), c.ny - 1)
+    iz = min(max(int(math.floor((zi - c.oz) * c.uz)), 0), c.nz - 1)
+    x_lo = c.ox + ix * c.sx
+    y_lo = c.oy + iy * c.sy
+    z_lo = c.oz + iz * c.sz
+    return (ix, iy, iz, _face_gap2(-1, xi, x_lo, x_lo + c.sx), _face_gap2(1, xi, x_lo, x_lo + c.sx),
+            _face_gap2(-1, yi, y_lo, y_lo + c.sy), _face_gap2(1, yi, y_lo, y_lo + c.sy),
+            _face_gap2(-1, zi, z_lo, z_lo + c.sz), _face_gap2(1, zi, z_lo, z_lo + c.sz))
+
+
+@njit(cache=True, inline="always")
+def _wrap(ci, n, periodic):
+    """Cell coordinate ci on an axis of n cells: wrapped on a periodic axis, -1 outside otherwise."""
+    if ci < 0 or ci >= n:
+        if not periodic:
+            return -1
+        return (ci + n) % n
+    return ci
+
+
+@njit(cache=True, inline="always")
+def cell_span(s, home, c, cell_begin, cell_end):
+    """Rows [lo, hi) of the walk's s-th cell (s = 0..26: dz, dy, dx = s // 9 - 1, s // 3 % 3 - 1,
+    s % 3 - 1 around the home cell), or an empty span when that cell lies outside the grid or farther
+    than H from the particle (the pruning of neighbour_row, the same gap sums in the same order)."""
+    ix, iy, iz, gxl, gxr, gyl, gyr, gzl, gzr = home
+    dz = s // 9 - 1
+    dy = (s // 3) % 3 - 1
+    dx = s % 3 - 1
+    g = gzl if dz < 0 else (gzr if dz > 0 else 0.0 * gzl)
+    g = g + (gyl if dy < 0 else (gyr if dy > 0 else 0.0 * gyl))
+    if dx != 0:
+        g = g + (gxl if dx < 0 else gxr)
+    if g >= c.H2:
+        return 0, 0
+    cz = _wrap(iz + dz, c.nz, c.pz)
+    cy = _wrap(iy + dy, c.ny, c.py)
+    cx = _wrap(ix + dx, c.nx, c.px)
+    if cz < 0 or cy < 0 or cx < 0:
+        return 0, 0
+    cell = (cz * c.ny + cy) * c.nx + cx
+    return cell_begin[cell], cell_end[cell]
+
+
 @literal_dispatch(1)
 @njit(cache=True, parallel=True)
 def _build_neighbours(periodic, x, n_query, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell, period,
@@ -295,6 +376,9 @@ class Grid:
         self.period = period.astype(self.dtype)
         self.periodic = bool(np.any(period > 0))
         self.H2 = self.dtype.type(H * H)
+        f = self.dtype.type
+        self.cells = Cells(*(f(v) for v in self.origin), *(f(v) for v in self.cell), *(f(v) for v in self.inv_cell),
+                           *(int(n) for n in self.ncell), *(bool(p > 0) for p in self.period), self.H2)
         self.ncells = int(np.prod(self.ncell))
         self.bin_start = np.zeros(2 * self.ncells + 1, dtype=np.int64)
         self.cell_begin = np.zeros(self.ncells, dtype=np.int64)

@@ -24,6 +24,11 @@ from sphcore.scene import Scene
 from sphcore.solvers import SOLVERS
 
 DTYPES = {"f32": np.float32, "f64": np.float64}
+# How the neighbour passes find their neighbours (stages.CHOICES "neighbours"; grid.py). Both visit the
+# same neighbours in the same order. Lists are the default on both backends: on 2 CPU cores they are
+# faster (docs/BENCHMARKS.md, scripts/bench_neighbours.py); the walk stores nothing per particle.
+NEIGHBOURS = {"lists": grid_mod.NEIGHBOUR_LISTS, "walk": grid_mod.CELL_WALK}
+DEFAULT_NEIGHBOURS = "lists"
 
 
 def scene_value(scene: Scene, key: str):
@@ -47,15 +52,19 @@ class Model:
     """Attributes (set once; ``scene`` and ``prm`` also by ``set_parameter``):
 
     scene, precision ("f32"/"f64"), dtype; dx (m, the lattice spacing), H (m, support radius), h = H/2;
-    kernel, eos, viscosity, integrator (choices.* IntEnums); choices (stages.CHOICES name -> code);
+    kernel, eos, viscosity, integrator (choices.* IntEnums); neighbours ("lists" or "walk"); choices (stages.CHOICES name -> code);
     gradient_moment (boundaries.lattice_gradient_moment); walls; mass (kg per particle); host_grid,
     grid_lo (float64 origin), lo (origin in the run's dtype), periodic (0/1); nu (m^2/s, 0 without a
     physical viscosity); prm (params.Params); the flags dfsph, continuity, use_xsph, use_shifting,
     use_drift, use_vorticity, use_diffusion; force_terms ((stage, scene value)
     of stages.FORCE_TERMS that are on); extra_names (the arrays carried in state.extra)."""
 
-    def __init__(self, scene: Scene, precision: str | None = None, backend: str = "cpu"):
+    def __init__(self, scene: Scene, precision: str | None = None, backend: str = "cpu",
+                 neighbours: str | None = None):
         self.scene = scene
+        self.neighbours = neighbours or DEFAULT_NEIGHBOURS
+        if self.neighbours not in NEIGHBOURS:
+            raise ValueError(f"neighbours must be one of {', '.join(NEIGHBOURS)}, got {self.neighbours!r}")
         self.precision = precision or scene.run.precision
         if self.precision == "auto":  # float32 is the GPU's native precision; float64 the CPU's default
             self.precision = "f32" if backend == "cuda" else "f64"
@@ -114,6 +123,7 @@ class Model:
         # the compile-time choices of this model's stages (stages.CHOICES); ``divergence`` is per call
         self.choices = {"kernel": int(self.kernel), "eos": int(self.eos), "viscosity": int(self.viscosity),
                         "integrator": int(self.integrator), "periodic": self.periodic,
+                        "neighbours": NEIGHBOURS[self.neighbours],
                         "continuity": int(self.continuity), "use_drift": int(self.use_drift),
                         "add": int(self.use_xsph)}
 

@@ -41,8 +41,10 @@ class Simulation:
     scene fixes (H, kernel, walls, prm, flags...) is the ``model``'s, read through the simulation
     (``sim.H`` is ``sim.model.H``)."""
 
-    def __init__(self, scene: Scene, precision: str | None = None, backend: str = "cpu", device: int | None = None):
-        """``backend`` "cpu" or "cuda"; ``device``: the GPU index for cuda (modulo the GPUs visible)."""
+    def __init__(self, scene: Scene, precision: str | None = None, backend: str = "cpu", device: int | None = None,
+                 neighbours: str | None = None):
+        """``backend`` "cpu" or "cuda"; ``device``: the GPU index for cuda (modulo the GPUs visible);
+        ``neighbours``: "lists" or "walk" (model.NEIGHBOURS; default model.DEFAULT_NEIGHBOURS)."""
         if backend not in BACKENDS:
             raise ValueError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
         self.backend = backend
@@ -50,7 +52,7 @@ class Simulation:
         if backend == "cuda":  # fail before any set-up work when there is no GPU
             from sphcore.backends import cuda as cuda_backend
             self.device_name = cuda_backend.require(device)
-        self.model = model = Model(scene, precision, backend)
+        self.model = model = Model(scene, precision, backend, neighbours)
         ids, x, v = generate_particles(scene, model.walls)
         self._state = ParticleState.create(ids, x, v, np.full(len(ids), model.mass), model.dtype)
         self.n_particles = len(ids)
@@ -65,6 +67,8 @@ class Simulation:
         self.dt_flow = 0.0
         self.leaks = 0
         self.max_neighbours = 0
+        self.neighbours_sum = 0  # neighbours of the owned rows at the last density pass: their sum
+        self.neighbours_max = 0  # and the most of one row
         self.max_compression = 0.0
         self.limit_counts = {name: 0 for name in LIMITS}
         self.last_limit = ""
@@ -139,7 +143,7 @@ class Simulation:
         return self.prm_now
 
     def _neighbours(self):
-        self.max_neighbours = max(self.max_neighbours, self.engine.bin())  # x -> (cell, id) order, lists
+        self.engine.bin()  # x -> (cell, id) order; the lists too, unless the passes walk the cells
 
     def step(self, dt_cap: float | None = None, halo=NULL_HALO):
         """Advance one time step; ``dt_cap`` shortens the last step of an --until run. ``halo`` must
@@ -188,8 +192,10 @@ class Simulation:
         yield from halo.exchange_positions(self)                   # migrants; ghosts' id, x, v, m (exchange 1)
         with self.timers("grid"):
             self._neighbours()                                     # x                -> order, neighbour lists
-        self._run(st.DENSITY, prm=prm, dt_prev=self.dtype.type(self.dt_prev),  # x, m (v) -> rho, p, fill
-                  commit=bool(commit))                             # continuity: commit the carried density
+        found, most = self._run(st.DENSITY, prm=prm, dt_prev=self.dtype.type(self.dt_prev),  # x, m (v) -> rho, p,
+                                commit=bool(commit))               # fill; continuity: commit the carried rho
+        self.neighbours_sum, self.neighbours_max = int(found), int(most)
+        self.max_neighbours = max(self.max_neighbours, self.neighbours_max)
         yield from self.solver.fields(halo, prm)                   # DFSPH: 1/D, g^wall, p = 0; rho_ref
         yield from self._exchange_fields(halo)                     # ghosts' rho, p   (exchange 2)
 

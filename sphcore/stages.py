@@ -26,6 +26,7 @@ from functools import cached_property
 from types import MappingProxyType
 
 from sphcore.choices import EOS, Integrator, Kernel, Viscosity
+from sphcore.grid import CELL_WALK, NEIGHBOUR_LISTS
 from sphcore.physics.continuity import density_update_row, diffusion_row
 from sphcore.physics.density import density_row
 from sphcore.physics.dfsph import dfsph_factor_row, dfsph_finish_row, dfsph_kick_row, dfsph_source_row, dfsph_update_row
@@ -45,6 +46,8 @@ CHOICES = MappingProxyType({
     "viscosity": (tuple(int(v) for v in Viscosity), int(Viscosity.ARTIFICIAL), "viscosity model (choices.Viscosity)"),
     "integrator": (tuple(int(g) for g in Integrator), int(Integrator.SYMPLECTIC_EULER), "time integrator"),
     "periodic": ((0, 1), 0, "1 if any axis is periodic: minimum-image separations and wrapping"),
+    "neighbours": ((NEIGHBOUR_LISTS, CELL_WALK), NEIGHBOUR_LISTS,
+                   "how a neighbour pass finds j: the stored lists, or a walk of the 27 cells (grid.py)"),
     "continuity": ((0, 1), 0, "1 if the density is carried by the continuity equation (sph.density)"),
     "divergence": ((0, 1), 0, "DFSPH: 1 for the divergence solve on v, 0 for the density solve on v*"),
     "add": ((0, 1), 0, "shifting: 1 adds to dv (XSPH wrote it), 0 writes it"),
@@ -54,7 +57,8 @@ CHOICES = MappingProxyType({
 # Every argument a row function may name: name -> (type, meaning and unit). Types: "params" (the
 # Params NamedTuple), "float" (a scalar in the run's precision), "bool", "vec" (n, 3) and "row" (n,)
 # arrays in the run's precision, "nbr" (n, capacity) int32 neighbour lists (column-major on the
-# GPU), "counts" (n,) int32, "kinds" (walls,) int32, "table" 2-D float arrays.
+# GPU), "counts" (n,) int32, "cells" (grid.Cells), "cell_rows" (cells,) int64, "kinds" (walls,)
+# int32, "table" 2-D float arrays.
 ARGUMENTS = MappingProxyType({
     "prm": ("params", "physical parameters (params.Params)"),
     # the particle state (state.ParticleState); kappa and rho_c are carried arrays (state.extra)
@@ -69,6 +73,9 @@ ARGUMENTS = MappingProxyType({
     # the grid (grid.Grid / cuda.DeviceGrid)
     "nbr": ("nbr", "neighbour lists: row k holds i's neighbour rows j"),
     "counts": ("counts", "neighbour list lengths"),
+    "cells": ("cells", "the grid's geometry for the cell walk (grid.Cells)"),
+    "cell_begin": ("cell_rows", "first row of every cell (rows sorted by cell, id)"),
+    "cell_end": ("cell_rows", "one past the last row of every cell"),
     # the walls (boundaries.build_walls)
     "wall_kind": ("kinds", "wall primitive kinds (choices.WallKind)"),
     "wall_data": ("table", "wall primitive geometry rows (physics/walls.py)"),
@@ -179,7 +186,8 @@ class Stage:
 
 
 # -- the stages, in the order a step may run them (solver.Simulation.stages orders them) ------------
-DENSITY = Stage("density", density_row, writes=("rho_c", "rho", "p", "fill")).check()
+DENSITY = Stage("density", density_row, writes=("rho_c", "rho", "p", "fill"),
+                reduce=("sum", "max")).check()  # returns i's neighbour count: their sum and maximum
 DFSPH_FACTOR = Stage("dfsph_factor", dfsph_factor_row, writes=("p", "wgrad", "inv_d", "lam_sum"),
                      reduce=("sum",)).check()  # returns rho_i / rho0 - 1 quantised: the mean density
 FORCES = Stage("forces", acceleration_row, writes=("a",)).check()

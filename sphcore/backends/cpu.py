@@ -47,7 +47,7 @@ class CpuStages(Engine):
             return s.extra["density"] if self.model.continuity else self.scratch.drho
         if name in self.scratch.arrays:
             return self.scratch.arrays[name]
-        if name in ("nbr", "counts"):
+        if name in ("nbr", "counts", "cells", "cell_begin", "cell_end"):
             return getattr(sim.grid, name)
         if name == "lo":
             return self.model.lo
@@ -72,4 +72,8 @@ class CpuStages(Engine):
         pass
 
     def bin(self):
-        return self.sim.grid.bin(self.sim._state)  # x -> (cell, id) order, neighbour lists
+        """x -> (cell, id) order, and the neighbour lists unless the passes walk the cells."""
+        if self.model.neighbours == "walk":
+            self.sim.grid.sort(self.sim._state)
+        else:
+            self.sim.grid.bin(self.sim._state)

@@ -495,6 +495,10 @@ class CudaStages(Engine):
             return self.grid.d_nbr
         if name == "counts":
             return self.grid.d_counts
+        if name == "cells":
+            return self.grid.host.cells
+        if name in ("cell_begin", "cell_end"):
+            return getattr(self.grid, name)
         return self.walls[name]
 
     def launch(self, stage, choices, n, arguments):
@@ -525,10 +529,13 @@ class CudaStages(Engine):
         return values[0] if len(values) == 1 else tuple(values)
 
     def bin(self):
+        """x -> (cell, id) order, and the neighbour lists unless the passes walk the cells."""
         self.begin()
-        most = self.grid.bin(self.d)
+        if self.model.neighbours == "walk":
+            self.grid.sort(self.d)
+        else:
+            self.grid.bin(self.d)
         cuda.synchronize()
-        return most
 
 
 def argument_types(dtype: str) -> dict:
@@ -539,6 +546,8 @@ def argument_types(dtype: str) -> dict:
     from sphcore.stages import SCRATCH
 
     f = types.float32 if dtype == "f32" else types.float64
+    real = np.float32 if dtype == "f32" else np.float64
+    cells = grid_mod.Cells(*(real(1.0),) * 9, 1, 1, 1, False, False, False, real(1.0))
     prm = make_params(np.float32 if dtype == "f32" else np.float64, H=1.0, h=0.5, s_w=1.0, s_g=1.0, s_l=1.0, w0=1.0,
                       rho0=1000.0, c0=10.0, clamp_negative=True, alpha=0.1, mu=0.0, gravity=(0.0, -9.81, 0.0),
                       external=(0.0, 0.0, 0.0), central_omega2=1.0, central=(0.0, 0.0, 0.0), period=(0.0, 0.0, 0.0),
@@ -547,7 +556,8 @@ def argument_types(dtype: str) -> dict:
                       dfsph_omega=0.5, delta_hc0=1.0)
     by_kind = {"params": numba.typeof(prm), "float": f, "bool": types.boolean, "vec": types.Array(f, 2, "C"),
                "row": types.Array(f, 1, "C"), "nbr": types.Array(types.int32, 2, "F"),
-               "counts": types.Array(types.int32, 1, "C"), "kinds": types.Array(types.int32, 1, "C"),
+               "counts": types.Array(types.int32, 1, "C"), "cells": numba.typeof(cells),
+               "cell_rows": types.Array(types.int64, 1, "C"), "kinds": types.Array(types.int32, 1, "C"),
                "table": types.Array(f, 2, "C")}
     out = {name: by_kind[kind] for name, (kind, _) in ARGUMENTS.items()}
     out.update({s.name: by_kind["row" if s.components == 1 else "vec"] for s in SCRATCH})

@@ -43,10 +43,12 @@ resting tank's kinetic energy grow without bound. The diffusion term, dissipativ
 computed after the ghosts' densities arrive and added with the step's dt (``diffusion_row``,
 ``density_update_row``).
 """
+import math
+
 from numba import njit
 from sphcore.physics.eos import sound_speed_sq
 from sphcore.physics.kernels import dw_dr_over_r
-from sphcore.physics.pairs import neighbour
+from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
 
 
 @njit(cache=True, inline="always")
@@ -69,20 +71,26 @@ def diffusion_pair(m_j, rho_i, rho_j, hydrostatic_ji, dw_over_r):
 
 
 @njit(cache=True, inline="always")
-def diffusion_row(kernel, eos, periodic, prm, i, x, m, rho, nbr, counts, drho):
+def diffusion_row(kernel, eos, periodic, neighbours, prm, i, x, m, rho, nbr, counts, cells, cell_begin, cell_end, drho):
     """drho_i = the delta-SPH density diffusion with its hydrostatic correction.   (continuity.py)"""
     rho_i = rho[i]
     diff = 0.0 * rho_i
-    for k in range(counts[i]):
-        j, dx, dy, dz, r2, r_ij = neighbour(periodic, x, nbr, i, k, prm)
-        if r2 == 0.0:
-            continue
-        g = dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
-        # (dx, dy, dz) = x_i - x_j; the pair's mean density sets the hydrostatic step (symmetric in i, j)
-        rho_m = 0.5 * (rho_i + rho[j])
-        hydro = hydrostatic_difference(rho_m, sound_speed_sq(eos, rho_m, prm.rho0, prm.c0),
-                                       prm.gravity_x, prm.gravity_y, prm.gravity_z, -dx, -dy, -dz)
-        diff += diffusion_pair(m[j], rho_i, rho[j], hydro, g)
+    home = walk_start(neighbours, x, i, cells)
+    for span in range(spans(neighbours)):
+        k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
+        for k in range(k_lo, k_hi):
+            j, dx, dy, dz, r2, inside = candidate(neighbours, periodic, x, nbr, i, k, prm, cells)
+            if not inside:
+                continue
+            r_ij = math.sqrt(r2)
+            if r2 == 0.0:
+                continue
+            g = dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
+            # (dx, dy, dz) = x_i - x_j; the pair's mean density sets the hydrostatic step (symmetric in i, j)
+            rho_m = 0.5 * (rho_i + rho[j])
+            hydro = hydrostatic_difference(rho_m, sound_speed_sq(eos, rho_m, prm.rho0, prm.c0),
+                                           prm.gravity_x, prm.gravity_y, prm.gravity_z, -dx, -dy, -dz)
+            diff += diffusion_pair(m[j], rho_i, rho[j], hydro, g)
     drho[i] = prm.delta_hc0 * diff
 
 

@@ -6,13 +6,15 @@ The sum runs over the particle itself and its neighbours; the second term is the
 that lies behind the walls (``sphcore.physics.walls``), so that particles next to a wall see a full
 kernel support instead of a density deficit.
 """
+import math
+
 from numba import njit
 
 from sphcore.physics.kernels import w
 from sphcore.physics.continuity import density_rate_pair
 from sphcore.physics.eos import pressure
 from sphcore.physics.kernels import dw_dr_over_r
-from sphcore.physics.pairs import neighbour
+from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
 from sphcore.physics.walls import fill_fraction, wall_density_gradient, wall_terms
 
 
@@ -23,21 +25,31 @@ def density_pair(kernel, m_j, r_ij, H, s_w):
 
 
 @njit(cache=True, inline="always")
-def density_row(kernel, eos, periodic, continuity, prm, i, x, v, m, nbr, counts, wall_kind, wall_data, wall_tables,
-                dt_prev, commit, rho_c, rho, p, fill):
+def density_row(kernel, eos, periodic, neighbours, continuity, prm, i, x, v, m, nbr, counts, cells, cell_begin,
+                cell_end, wall_kind, wall_data, wall_tables, dt_prev, commit, rho_c, rho, p, fill):
     """rho_i = m_i W(0) + sum_j m_j W_ij + theta_i rho0 Phi(d_i);  p_i = EOS(rho_i); fill_i = theta_i.
     With ``continuity``: rho_i = rho_c[i] + dt_prev D rho_i/Dt, the carried density advanced by the
     continuity equation over the previous step with the velocities that moved the particles here
-    (stored back if ``commit``; a carried 0 starts at rho0). (density.py, continuity.py, eos.py, walls.py)"""
+    (stored back if ``commit``; a carried 0 starts at rho0). Returns i's neighbour count twice (their
+    sum and maximum over the rows are the step's neighbour statistics). (density.py, continuity.py,
+    eos.py, walls.py)"""
     rho_i = m[i] * prm.w0
     rate = 0.0 * rho_i
-    for k in range(counts[i]):
-        j, dx, dy, dz, r2, r_ij = neighbour(periodic, x, nbr, i, k, prm)
-        rho_i += density_pair(kernel, m[j], r_ij, prm.H, prm.s_w)
-        if continuity and r2 > 0.0:
-            g = dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
-            rate += density_rate_pair(m[j], v[i, 0] - v[j, 0], v[i, 1] - v[j, 1], v[i, 2] - v[j, 2],
-                                      g * dx, g * dy, g * dz)
+    found = 0  # neighbours of i (the step's neighbour statistics)
+    home = walk_start(neighbours, x, i, cells)
+    for span in range(spans(neighbours)):
+        k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
+        for k in range(k_lo, k_hi):
+            j, dx, dy, dz, r2, inside = candidate(neighbours, periodic, x, nbr, i, k, prm, cells)
+            if not inside:
+                continue
+            found += 1
+            r_ij = math.sqrt(r2)
+            rho_i += density_pair(kernel, m[j], r_ij, prm.H, prm.s_w)
+            if continuity and r2 > 0.0:
+                g = dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
+                rate += density_rate_pair(m[j], v[i, 0] - v[j, 0], v[i, 1] - v[j, 1], v[i, 2] - v[j, 2],
+                                          g * dx, g * dy, g * dz)
     drho, _, _, _ = wall_terms(kernel, prm, False, wall_kind, wall_data, wall_tables, x[i, 0], x[i, 1], x[i, 2],
                                0.0 * rho_i, rho_i, 0.0 * rho_i, 0.0 * rho_i, 0.0 * rho_i)
     theta = fill_fraction(rho_i, drho, prm.rho0)
@@ -57,3 +69,4 @@ def density_row(kernel, eos, periodic, continuity, prm, i, x, v, m, nbr, counts,
                 rho_c[i] = rho_i
     rho[i] = rho_i
     p[i] = pressure(eos, rho_i, prm.rho0, prm.c0, prm.clamp_negative)
+    return found * 1, 1.0 * found  # (found * 1: a returned loop counter trips numba's parfor reduction lookup)

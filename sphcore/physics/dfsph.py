@@ -46,10 +46,12 @@ v divergence-free there (B&K run it at the end of a step, after the neighbour se
 in the cycle); non-pressure accelerations a_np; dt; v* = v + dt a_np; the density solver corrects v*;
 x += dt v*. Time steps are limited by the flow speed, not by a speed of sound.
 """
+import math
+
 from numba import njit
 from sphcore.physics.continuity import density_rate_pair
 from sphcore.physics.kernels import dw_dr_over_r
-from sphcore.physics.pairs import neighbour
+from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
 from sphcore.physics.walls import wall_density_gradient
 
 # The solvers' convergence test sums |s_i| / rho0 over all particles of all peers. Each row's share is
@@ -153,8 +155,8 @@ def inverse_diagonal(gx, gy, gz, wx, wy, wz, sum_sq, d0):
 
 
 @njit(cache=True, inline="always")
-def dfsph_factor_row(kernel, periodic, prm, i, x, m, rho, nbr, counts, wall_kind, wall_data, wall_tables, fill, p,
-                     wgrad, inv_d, lam_sum):
+def dfsph_factor_row(kernel, periodic, neighbours, prm, i, x, m, rho, nbr, counts, cells, cell_begin, cell_end,
+                     wall_kind, wall_data, wall_tables, fill, p, wgrad, inv_d, lam_sum):
     """DFSPH set-up of row i at the step's positions: the wall gradient g_i^wall, 1 / D_i, and p_i = 0
     (the forces stage then gives the non-pressure accelerations); returns rho_i / rho0 - 1 quantised
     (dfsph.quantized_offset; summed over all rows: the mean density).   (dfsph.py)"""
@@ -162,15 +164,21 @@ def dfsph_factor_row(kernel, periodic, prm, i, x, m, rho, nbr, counts, wall_kind
     gy = 0.0 * prm.H
     gz = 0.0 * prm.H
     sum_sq = 0.0 * prm.H
-    for k in range(counts[i]):
-        j, dx, dy, dz, r2, r_ij = neighbour(periodic, x, nbr, i, k, prm)
-        if r2 == 0.0:
-            continue
-        g = m[j] * dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
-        gx += g * dx
-        gy += g * dy
-        gz += g * dz
-        sum_sq += g * g * r2
+    home = walk_start(neighbours, x, i, cells)
+    for span in range(spans(neighbours)):
+        k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
+        for k in range(k_lo, k_hi):
+            j, dx, dy, dz, r2, inside = candidate(neighbours, periodic, x, nbr, i, k, prm, cells)
+            if not inside:
+                continue
+            r_ij = math.sqrt(r2)
+            if r2 == 0.0:
+                continue
+            g = m[j] * dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
+            gx += g * dx
+            gy += g * dy
+            gz += g * dz
+            sum_sq += g * g * r2
     rho_i = rho[i]
     wx, wy, wz = wall_density_gradient(kernel, prm, wall_kind, wall_data, wall_tables, x, i, rho_i, fill[i])
     wgrad[i, 0] = wx
@@ -183,23 +191,31 @@ def dfsph_factor_row(kernel, periodic, prm, i, x, m, rho, nbr, counts, wall_kind
 
 
 @njit(cache=True, inline="always")
-def dfsph_source_row(kernel, periodic, divergence, prm, i, x, v, m, rho, nbr, counts, wgrad, inv_d, dt, share,
-                     rho_ref, lam_sum, lam):
+def dfsph_source_row(kernel, periodic, neighbours, divergence, prm, i, x, v, m, rho, nbr, counts, cells, cell_begin,
+                     cell_end, wgrad, inv_d, dt, share, rho_ref, lam_sum, lam):
     """This iteration's lambda_i = s_i / D_i from the velocities v, projected so that the solve's sum
     stays >= 0 with free surfaces (dfsph.py); returns the density error it removes, |lambda_i| D_i / rho0,
     quantised (dfsph.quantized_error: an integer, so the sum over rows is the same in any order; 0 for a
     particle without neighbours: nothing to solve there)."""
     rate = wgrad[i, 0] * v[i, 0] + wgrad[i, 1] * v[i, 1] + wgrad[i, 2] * v[i, 2]
-    for k in range(counts[i]):
-        j, dx, dy, dz, r2, r_ij = neighbour(periodic, x, nbr, i, k, prm)
-        if r2 == 0.0:
-            continue
-        g = dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
-        rate += density_rate_pair(m[j], v[i, 0] - v[j, 0], v[i, 1] - v[j, 1], v[i, 2] - v[j, 2],
-                                  g * dx, g * dy, g * dz)
+    found = 0  # neighbours of i
+    home = walk_start(neighbours, x, i, cells)
+    for span in range(spans(neighbours)):
+        k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
+        for k in range(k_lo, k_hi):
+            j, dx, dy, dz, r2, inside = candidate(neighbours, periodic, x, nbr, i, k, prm, cells)
+            if not inside:
+                continue
+            found += 1
+            r_ij = math.sqrt(r2)
+            if r2 == 0.0:
+                continue
+            g = dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
+            rate += density_rate_pair(m[j], v[i, 0] - v[j, 0], v[i, 1] - v[j, 1], v[i, 2] - v[j, 2],
+                                      g * dx, g * dy, g * dz)
     s = source(divergence, rho[i], rho_ref, rate, dt, share)
     inv = inv_d[i]
-    if counts[i] == 0:  # alone: no neighbour to push, nothing to solve
+    if found == 0:  # alone: no neighbour to push, nothing to solve
         lam[i] = 0.0 * s
         return quantized_error(0.0 * s)
     dl = increment(prm.clamp_negative, prm.dfsph_omega * s * inv, lam_sum[i])  # inv = 1 / max(D_i, d0)
@@ -208,21 +224,28 @@ def dfsph_source_row(kernel, periodic, divergence, prm, i, x, v, m, rho, nbr, co
 
 
 @njit(cache=True, inline="always")
-def dfsph_update_row(kernel, periodic, prm, i, x, m, lam, nbr, counts, wgrad, inv_dt, v, lam_sum):
+def dfsph_update_row(kernel, periodic, neighbours, prm, i, x, m, lam, nbr, counts, cells, cell_begin, cell_end, wgrad,
+                     inv_dt, v, lam_sum):
     """v_i -= (1/dt) [sum_j m_j (lambda_i + lambda_j) grad W_ij + lambda_i g_i^wall];
     lam_sum_i += lambda_i.   (dfsph.py)"""
     l_i = lam[i]
     sx = l_i * wgrad[i, 0]
     sy = l_i * wgrad[i, 1]
     sz = l_i * wgrad[i, 2]
-    for k in range(counts[i]):
-        j, dx, dy, dz, r2, r_ij = neighbour(periodic, x, nbr, i, k, prm)
-        if r2 == 0.0:
-            continue
-        g = m[j] * (l_i + lam[j]) * dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
-        sx += g * dx
-        sy += g * dy
-        sz += g * dz
+    home = walk_start(neighbours, x, i, cells)
+    for span in range(spans(neighbours)):
+        k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
+        for k in range(k_lo, k_hi):
+            j, dx, dy, dz, r2, inside = candidate(neighbours, periodic, x, nbr, i, k, prm, cells)
+            if not inside:
+                continue
+            r_ij = math.sqrt(r2)
+            if r2 == 0.0:
+                continue
+            g = m[j] * (l_i + lam[j]) * dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
+            sx += g * dx
+            sy += g * dy
+            sz += g * dz
     v[i, 0] -= inv_dt * sx
     v[i, 1] -= inv_dt * sy
     v[i, 2] -= inv_dt * sz

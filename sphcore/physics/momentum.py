@@ -4,19 +4,21 @@ The pair terms and their papers are in pressure.py (symmetric pressure gradient,
 viscosity.py (artificial, Muller, Morris), external.py (body forces) and walls.py (the analytic
 wall's pressure and no-slip drag); this file sums them over i's neighbours."""
 
+import math
+
 from numba import njit
 
 from sphcore.physics.external import body_acceleration, central_acceleration
 from sphcore.physics.kernels import dw_dr_over_r, lap_w_viscosity
-from sphcore.physics.pairs import neighbour
+from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
 from sphcore.physics.pressure import pressure_pair
 from sphcore.physics.viscosity import artificial_pair, morris_pair, muller_pair
 from sphcore.physics.walls import wall_terms, wall_viscosity
 
 
 @njit(cache=True, inline="always")
-def acceleration_row(kernel, viscosity, periodic, prm, i, x, v, m, rho, p, nbr, counts, wall_kind, wall_data,
-                     wall_tables, fill, a):
+def acceleration_row(kernel, viscosity, periodic, neighbours, prm, i, x, v, m, rho, p, nbr, counts, cells, cell_begin,
+                     cell_end, wall_kind, wall_data, wall_tables, fill, a):
     """a_i = pressure + viscosity + body force + wall pressure.   (pressure.py, viscosity.py,
     external.py, walls.py)"""
     bx, by, bz = body_acceleration(prm)
@@ -31,28 +33,34 @@ def acceleration_row(kernel, viscosity, periodic, prm, i, x, v, m, rho, p, nbr, 
     rho_i = rho[i]
     p_i = p[i]
     p_rho2_i = p_i / (rho_i * rho_i)
-    for k in range(counts[i]):
-        j, dx, dy, dz, r2, r_ij = neighbour(periodic, x, nbr, i, k, prm)
-        if r2 == 0.0:
-            continue  # coincident particles: no direction, no pressure force
-        dw_over_r = dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
-        f = pressure_pair(m[j], p_rho2_i, p[j], rho[j], dw_over_r)
-        if viscosity == 1:  # Viscosity.ARTIFICIAL
-            vdotx = ((v[i, 0] - v[j, 0]) * dx + (v[i, 1] - v[j, 1]) * dy + (v[i, 2] - v[j, 2]) * dz)
-            f += artificial_pair(m[j], vdotx, r2, rho_i, rho[j], dw_over_r, prm.alpha, prm.c0, prm.h)
-        ax += f * dx
-        ay += f * dy
-        az += f * dz
-        if viscosity == 2:  # Viscosity.MULLER: along v_j - v_i
-            g = muller_pair(m[j], rho_i, rho[j], lap_w_viscosity(r_ij, prm.H, prm.s_l), prm.mu)
-            ax += g * (v[j, 0] - v[i, 0])
-            ay += g * (v[j, 1] - v[i, 1])
-            az += g * (v[j, 2] - v[i, 2])
-        elif viscosity == 3:  # Viscosity.MORRIS: along v_i - v_j
-            g = morris_pair(m[j], r2, rho_i, rho[j], dw_over_r, prm.mu, prm.h)
-            ax += g * (v[i, 0] - v[j, 0])
-            ay += g * (v[i, 1] - v[j, 1])
-            az += g * (v[i, 2] - v[j, 2])
+    home = walk_start(neighbours, x, i, cells)
+    for span in range(spans(neighbours)):
+        k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
+        for k in range(k_lo, k_hi):
+            j, dx, dy, dz, r2, inside = candidate(neighbours, periodic, x, nbr, i, k, prm, cells)
+            if not inside:
+                continue
+            r_ij = math.sqrt(r2)
+            if r2 == 0.0:
+                continue  # coincident particles: no direction, no pressure force
+            dw_over_r = dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
+            f = pressure_pair(m[j], p_rho2_i, p[j], rho[j], dw_over_r)
+            if viscosity == 1:  # Viscosity.ARTIFICIAL
+                vdotx = ((v[i, 0] - v[j, 0]) * dx + (v[i, 1] - v[j, 1]) * dy + (v[i, 2] - v[j, 2]) * dz)
+                f += artificial_pair(m[j], vdotx, r2, rho_i, rho[j], dw_over_r, prm.alpha, prm.c0, prm.h)
+            ax += f * dx
+            ay += f * dy
+            az += f * dz
+            if viscosity == 2:  # Viscosity.MULLER: along v_j - v_i
+                g = muller_pair(m[j], rho_i, rho[j], lap_w_viscosity(r_ij, prm.H, prm.s_l), prm.mu)
+                ax += g * (v[j, 0] - v[i, 0])
+                ay += g * (v[j, 1] - v[i, 1])
+                az += g * (v[j, 2] - v[i, 2])
+            elif viscosity == 3:  # Viscosity.MORRIS: along v_i - v_j
+                g = morris_pair(m[j], r2, rho_i, rho[j], dw_over_r, prm.mu, prm.h)
+                ax += g * (v[i, 0] - v[j, 0])
+                ay += g * (v[i, 1] - v[j, 1])
+                az += g * (v[i, 2] - v[j, 2])
     _, wx, wy, wz = wall_terms(kernel, prm, True, wall_kind, wall_data, wall_tables, x[i, 0], x[i, 1], x[i, 2],
                                p_i, rho_i, bx, by, bz)
     ax += fill[i] * wx

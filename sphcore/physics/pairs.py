@@ -1,11 +1,26 @@
-"""What every neighbour pass shares: row i's k-th neighbour j, the separation x_ij = x_i - x_j of
-the pair (minimum image on periodic axes, grid.minimum_image) and its length."""
+"""What every neighbour pass shares: how row i finds its neighbours j, the separation
+x_ij = x_i - x_j of a pair (minimum image on periodic axes, grid.minimum_image) and its length.
+
+Every pass loops the same way, whichever the compile-time choice ``neighbours`` (stages.CHOICES):
+
+    home = walk_start(neighbours, x, i, cells)
+    for s in range(spans(neighbours)):
+        lo, hi = span_rows(neighbours, s, home, i, counts, cells, cell_begin, cell_end)
+        for k in range(lo, hi):
+            j, dx, dy, dz, r2, inside = candidate(neighbours, periodic, x, nbr, i, k, prm, cells)
+            if not inside:
+                continue
+
+With ``NEIGHBOUR_LISTS`` there is one span, row i's list (k indexes it); with ``CELL_WALK`` there
+are 27, the cells around i's own (grid.cell_span; k is the row itself) and a candidate counts when
+|x_ij|^2 < H^2 and j != i, the test the list builder applies. Both visit the same j in the same order.
+"""
 
 import math
 
 from numba import njit
 
-from sphcore.grid import minimum_image
+from sphcore.grid import CELL_WALK, SPANS, cell_span, home_cell, minimum_image
 
 
 @njit(cache=True, inline="always")
@@ -25,8 +40,46 @@ def separation(periodic, x, i, j, prm):
 
 
 @njit(cache=True, inline="always")
+def walk_start(neighbours, x, i, cells):
+    """Row i's home cell and face gaps for the walk (grid.home_cell); a placeholder for lists."""
+    if neighbours == CELL_WALK:
+        return home_cell(x, i, cells)
+    z = 0.0
+    return 0, 0, 0, z, z, z, z, z, z
+
+
+@njit(cache=True, inline="always")
+def spans(neighbours):
+    """The number of row ranges a pass visits: 27 cells, or one list."""
+    return SPANS if neighbours == CELL_WALK else 1
+
+
+@njit(cache=True, inline="always")
+def span_rows(neighbours, s, home, i, counts, cells, cell_begin, cell_end):
+    """[lo, hi) of span s: the rows of the s-th cell of the walk, or the positions of row i's list."""
+    if neighbours == CELL_WALK:
+        return cell_span(s, home, cells, cell_begin, cell_end)
+    return 0, counts[i]
+
+
+@njit(cache=True, inline="always")
+def candidate(neighbours, periodic, x, nbr, i, k, prm, cells):
+    """(j, dx, dy, dz, r2, inside) of the k-th candidate of row i: x_ij and |x_ij|^2 (m^2); inside is
+    whether j is a neighbour (always, for a list entry). The square root is left to the caller, for
+    the candidates that are inside only."""
+    j = k if neighbours == CELL_WALK else nbr[i, k]
+    dx, dy, dz = separation(periodic, x, i, j, prm)
+    r2 = dx * dx + dy * dy + dz * dz
+    inside = True
+    if neighbours == CELL_WALK:
+        inside = r2 < cells.H2 and j != i
+    return j, dx, dy, dz, r2, inside
+
+
+@njit(cache=True, inline="always")
 def neighbour(periodic, x, nbr, i, k, prm):
-    """(j, dx, dy, dz, r2, r) of row i's k-th neighbour j: x_ij = x_i - x_j, |x_ij|^2 and |x_ij| (m)."""
+    """(j, dx, dy, dz, r2, r) of row i's k-th list entry j: x_ij = x_i - x_j, |x_ij|^2 and |x_ij| (m)
+    (tests and tools that read a neighbour list)."""
     j = nbr[i, k]
     dx, dy, dz = separation(periodic, x, i, j, prm)
     r2 = dx * dx + dy * dy + dz * dz

@@ -24,7 +24,7 @@ pushes a particle towards a wall.
 from numba import njit
 import math
 from sphcore.physics.kernels import dw_dr_over_r, w
-from sphcore.physics.pairs import neighbour
+from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
 from sphcore.physics.walls import signed_distance
 
 SURFACE_CONCENTRATION = 0.9  # C_i below this marks a particle of the free-surface layer
@@ -37,22 +37,29 @@ def concentration_gradient_pair(m_j, rho0, dw_over_r):
 
 
 @njit(cache=True, inline="always")
-def shifting_row(kernel, periodic, add, prm, i, x, v, m, rho, nbr, counts, wall_kind, wall_data, dv):
+def shifting_row(kernel, periodic, neighbours, add, prm, i, x, v, m, rho, nbr, counts, cells, cell_begin, cell_end,
+                 wall_kind, wall_data, dv):
     """Particle shifting as a drift velocity, -A h |v_i| grad C_i, free-surface and wall-normal
     components removed (shifting.py); added to dv if ``add`` (XSPH wrote it), else written."""
     gx = 0.0 * prm.H
     gy = 0.0 * prm.H
     gz = 0.0 * prm.H
     c = m[i] / prm.rho0 * prm.w0
-    for k in range(counts[i]):
-        j, dx, dy, dz, r2, r_ij = neighbour(periodic, x, nbr, i, k, prm)
-        c += m[j] / prm.rho0 * w(kernel, r_ij, prm.H, prm.s_w)
-        if r2 == 0.0:
-            continue
-        f = concentration_gradient_pair(m[j], prm.rho0, dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g))
-        gx += f * dx
-        gy += f * dy
-        gz += f * dz
+    home = walk_start(neighbours, x, i, cells)
+    for span in range(spans(neighbours)):
+        k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
+        for k in range(k_lo, k_hi):
+            j, dx, dy, dz, r2, inside = candidate(neighbours, periodic, x, nbr, i, k, prm, cells)
+            if not inside:
+                continue
+            r_ij = math.sqrt(r2)
+            c += m[j] / prm.rho0 * w(kernel, r_ij, prm.H, prm.s_w)
+            if r2 == 0.0:
+                continue
+            f = concentration_gradient_pair(m[j], prm.rho0, dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g))
+            gx += f * dx
+            gy += f * dy
+            gz += f * dz
     if c < SURFACE_CONCENTRATION:  # free-surface layer: grad C is the surface's, not disorder's
         gx = 0.0 * gx
         gy = 0.0 * gy

@@ -13,7 +13,7 @@ gradient kernel; the Laplacian uses the viscosity-kernel Laplacian, as Müller d
 from numba import njit
 import math
 from sphcore.physics.kernels import dw_dr_over_r, lap_w_viscosity
-from sphcore.physics.pairs import neighbour
+from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
 
 
 @njit(cache=True, inline="always")
@@ -37,21 +37,27 @@ def surface_tension_factor(sigma, lap_c, n_norm, rho_i, threshold):
 
 
 @njit(cache=True, inline="always")
-def surface_tension_row(kernel, periodic, prm, i, x, m, rho, nbr, counts, a):
+def surface_tension_row(kernel, periodic, neighbours, prm, i, x, m, rho, nbr, counts, cells, cell_begin, cell_end, a):
     """Colour-field surface tension, a_i += -sigma lap c_i n_i / (|n_i| rho_i).   (surface_tension.py)"""
     gx = 0.0 * prm.H
     gy = 0.0 * prm.H
     gz = 0.0 * prm.H
     lap_c = 0.0 * prm.H
-    for k in range(counts[i]):
-        j, dx, dy, dz, r2, r_ij = neighbour(periodic, x, nbr, i, k, prm)
-        if r2 == 0.0:
-            continue
-        f = colour_gradient_pair(m[j], rho[j], dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g))
-        gx += f * dx
-        gy += f * dy
-        gz += f * dz
-        lap_c += colour_laplacian_pair(m[j], rho[j], lap_w_viscosity(r_ij, prm.H, prm.s_l))
+    home = walk_start(neighbours, x, i, cells)
+    for span in range(spans(neighbours)):
+        k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
+        for k in range(k_lo, k_hi):
+            j, dx, dy, dz, r2, inside = candidate(neighbours, periodic, x, nbr, i, k, prm, cells)
+            if not inside:
+                continue
+            r_ij = math.sqrt(r2)
+            if r2 == 0.0:
+                continue
+            f = colour_gradient_pair(m[j], rho[j], dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g))
+            gx += f * dx
+            gy += f * dy
+            gz += f * dz
+            lap_c += colour_laplacian_pair(m[j], rho[j], lap_w_viscosity(r_ij, prm.H, prm.s_l))
     norm = math.sqrt(gx * gx + gy * gy + gz * gz)
     s = surface_tension_factor(prm.sigma, lap_c, norm, rho[i], prm.st_threshold)
     a[i, 0] += s * gx

@@ -12,7 +12,7 @@ and the cross products reduce accordingly (vectors are always stored with 3 comp
 from numba import njit
 import math
 from sphcore.physics.kernels import dw_dr_over_r
-from sphcore.physics.pairs import neighbour
+from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
 
 
 @njit(cache=True, inline="always")
@@ -28,41 +28,54 @@ def confinement(eps, nx, ny, nz, ox, oy, oz):
 
 
 @njit(cache=True, inline="always")
-def vorticity_row(kernel, periodic, prm, i, x, v, m, rho, nbr, counts, omega):
+def vorticity_row(kernel, periodic, neighbours, prm, i, x, v, m, rho, nbr, counts, cells, cell_begin, cell_end, omega):
     """omega_i = sum_j m_j / rho_j grad W_ij x (v_j - v_i).   (vorticity.py)"""
     ox = 0.0 * prm.H
     oy = 0.0 * prm.H
     oz = 0.0 * prm.H
-    for k in range(counts[i]):
-        j, dx, dy, dz, r2, r_ij = neighbour(periodic, x, nbr, i, k, prm)
-        if r2 == 0.0:
-            continue
-        g = dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
-        cx, cy, cz = curl_pair(m[j] / rho[j], v[j, 0] - v[i, 0], v[j, 1] - v[i, 1], v[j, 2] - v[i, 2],
-                               g * dx, g * dy, g * dz)
-        ox += cx
-        oy += cy
-        oz += cz
+    home = walk_start(neighbours, x, i, cells)
+    for span in range(spans(neighbours)):
+        k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
+        for k in range(k_lo, k_hi):
+            j, dx, dy, dz, r2, inside = candidate(neighbours, periodic, x, nbr, i, k, prm, cells)
+            if not inside:
+                continue
+            r_ij = math.sqrt(r2)
+            if r2 == 0.0:
+                continue
+            g = dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
+            cx, cy, cz = curl_pair(m[j] / rho[j], v[j, 0] - v[i, 0], v[j, 1] - v[i, 1], v[j, 2] - v[i, 2],
+                                   g * dx, g * dy, g * dz)
+            ox += cx
+            oy += cy
+            oz += cz
     omega[i, 0] = ox
     omega[i, 1] = oy
     omega[i, 2] = oz
 
 
 @njit(cache=True, inline="always")
-def confinement_row(kernel, periodic, prm, i, x, m, rho, omega, nbr, counts, a):
+def confinement_row(kernel, periodic, neighbours, prm, i, x, m, rho, omega, nbr, counts, cells, cell_begin, cell_end,
+                    a):
     """a_i += eps N_i x omega_i, N = eta/|eta|, eta_i = sum_j m_j/rho_j |omega_j| grad W_ij."""
     ex = 0.0 * prm.H
     ey = 0.0 * prm.H
     ez = 0.0 * prm.H
-    for k in range(counts[i]):
-        j, dx, dy, dz, r2, r_ij = neighbour(periodic, x, nbr, i, k, prm)
-        if r2 == 0.0:
-            continue
-        wj = math.sqrt(omega[j, 0] ** 2 + omega[j, 1] ** 2 + omega[j, 2] ** 2)
-        g = m[j] / rho[j] * wj * dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
-        ex += g * dx
-        ey += g * dy
-        ez += g * dz
+    home = walk_start(neighbours, x, i, cells)
+    for span in range(spans(neighbours)):
+        k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
+        for k in range(k_lo, k_hi):
+            j, dx, dy, dz, r2, inside = candidate(neighbours, periodic, x, nbr, i, k, prm, cells)
+            if not inside:
+                continue
+            r_ij = math.sqrt(r2)
+            if r2 == 0.0:
+                continue
+            wj = math.sqrt(omega[j, 0] ** 2 + omega[j, 1] ** 2 + omega[j, 2] ** 2)
+            g = m[j] / rho[j] * wj * dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
+            ex += g * dx
+            ey += g * dy
+            ez += g * dz
     norm = math.sqrt(ex * ex + ey * ey + ez * ez)
     if norm > 0.0:
         fx, fy, fz = confinement(prm.vorticity_eps, ex / norm, ey / norm, ez / norm,

@@ -8,9 +8,11 @@ the momentum equation:
 
 Only the drift uses the correction; the velocity itself is unchanged.
 """
+import math
+
 from numba import njit
 from sphcore.physics.kernels import w
-from sphcore.physics.pairs import neighbour
+from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
 
 
 @njit(cache=True, inline="always")
@@ -20,17 +22,23 @@ def xsph_pair(m_j, rho_i, rho_j, w_ij):
 
 
 @njit(cache=True, inline="always")
-def xsph_row(kernel, periodic, prm, i, x, v, m, rho, nbr, counts, dv):
+def xsph_row(kernel, periodic, neighbours, prm, i, x, v, m, rho, nbr, counts, cells, cell_begin, cell_end, dv):
     """dv_i = eps sum_j m_j / rho_ij (v_j - v_i) W_ij (the drift uses v + dv).   (xsph.py)"""
     sx = 0.0 * prm.H
     sy = 0.0 * prm.H
     sz = 0.0 * prm.H
-    for k in range(counts[i]):
-        j, dx, dy, dz, r2, r_ij = neighbour(periodic, x, nbr, i, k, prm)
-        f = xsph_pair(m[j], rho[i], rho[j], w(kernel, r_ij, prm.H, prm.s_w))
-        sx += f * (v[j, 0] - v[i, 0])
-        sy += f * (v[j, 1] - v[i, 1])
-        sz += f * (v[j, 2] - v[i, 2])
+    home = walk_start(neighbours, x, i, cells)
+    for span in range(spans(neighbours)):
+        k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
+        for k in range(k_lo, k_hi):
+            j, dx, dy, dz, r2, inside = candidate(neighbours, periodic, x, nbr, i, k, prm, cells)
+            if not inside:
+                continue
+            r_ij = math.sqrt(r2)
+            f = xsph_pair(m[j], rho[i], rho[j], w(kernel, r_ij, prm.H, prm.s_w))
+            sx += f * (v[j, 0] - v[i, 0])
+            sy += f * (v[j, 1] - v[i, 1])
+            sz += f * (v[j, 2] - v[i, 2])
     dv[i, 0] = prm.xsph_eps * sx
     dv[i, 1] = prm.xsph_eps * sy
     dv[i, 2] = prm.xsph_eps * sz
