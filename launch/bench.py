@@ -55,9 +55,10 @@ def _fixed(scene_path: Path, dx: float) -> list[str]:
     return [f"particles.spacing={dx!r}", "time.mode='fixed'", f"time.dt={fixed_dt(scene_path, dx)!r}"]
 
 
-def bench_case(scene_path: Path, dx: float, precision: str, threads: int, steps: int, backend: str = "cpu") -> dict:
+def bench_case(scene_path: Path, dx: float, precision: str, threads: int, steps: int, backend: str = "cpu",
+               neighbours: str = "lists") -> dict:
     numba.set_num_threads(threads)
-    scene = load_scene(scene_path, _fixed(scene_path, dx))
+    scene = load_scene(scene_path, _fixed(scene_path, dx) + [f"run.neighbours={neighbours!r}"])
     sim = Simulation(scene, precision, backend)
     t0 = time.perf_counter()
     sim.step()  # compile or load the cache
@@ -73,7 +74,8 @@ def bench_case(scene_path: Path, dx: float, precision: str, threads: int, steps:
         "precision": precision, "threads": threads if backend == "cpu" else 0,
         "particles": sim.n_particles, "dx": dx, "steps": steps, "dt": sim.dt, "wall_s": wall,
         "particle_steps_per_s": sim.n_particles * steps / wall, "steps_per_s": steps / wall, "first_step_s": first,
-        "neighbours": float(sim.grid.counts[: sim.state.n_owned].mean()), "stage_median_s": stages,
+        "neighbours": sim.neighbours_sum / max(sim.state.n_owned, 1), "neighbour_search": neighbours,
+        "stage_median_s": stages,
         "leaks": sim.leaks,
     }
 
@@ -95,14 +97,16 @@ def run_bench(args) -> int:
         dx = spacing_for(scene_path, target)
         for precision in args.precisions:
             for threads in (args.threads if args.backend == "cpu" else args.threads[:1]):
-                r = bench_case(scene_path, dx, precision, threads, args.steps, args.backend)
-                results.append(r)
-                print(_row(r), flush=True)
+                for neighbours in args.neighbours:
+                    r = bench_case(scene_path, dx, precision, threads, args.steps, args.backend, neighbours)
+                    results.append(r)
+                    print(_row(r), flush=True)
         if args.external:
             results += _external(dx, args.steps, args.threads)
         if args.peers != [1]:
             results += _peer_cases(scene_path, dx, args)
     if not args.network:
+        _print_walk_ratios(results)
         _print_ratios(results)
         _print_peer_ratios(results)
     report = {
@@ -198,13 +202,26 @@ def _row(r: dict) -> str:
     nb = r.get("neighbours")
     nb_text = f"{nb:5.1f}" if isinstance(nb, (int, float)) else "    -"
     where = "cuda     " if r.get("backend") == "cuda" else f"threads={r['threads']}"
+    where += " walk " if r.get("neighbour_search") == "walk" else ""
     rate = f" {r['steps_per_s']:7.1f} steps/s" if r.get("backend") == "cuda" else ""
     return (f"{r['code']:>13} {r['method']:>6} {r.get('precision', 'f64'):>4} {where} "
             f"N={r['particles']:>8} nbrs={nb_text} {r['particle_steps_per_s']:10.3e} particle-steps/s{rate}{split}")
 
 
+def _print_walk_ratios(results: list[dict]):
+    """Cell walk / neighbour lists, the same case side by side (sph bench --neighbours lists walk)."""
+    walks = [r for r in results if r.get("neighbour_search") == "walk"]
+    pairs = [(w, l) for w in walks for l in results if l.get("neighbour_search") == "lists"
+             and all(l[k] == w[k] for k in ("precision", "threads", "backend", "particles"))]
+    if pairs:
+        print("\ncell walk / neighbour lists (same case, same run):")
+    for w, l in pairs:
+        print(f"  {w['backend']} {w['precision']} threads={w['threads']} N={w['particles']}: "
+              f"{w['particle_steps_per_s'] / l['particle_steps_per_s']:.3f}x")
+
+
 def _print_ratios(results: list[dict]):
-    ours = [r for r in results if r["code"] == "sphfluid"]
+    ours = [r for r in results if r["code"] == "sphfluid" and r.get("neighbour_search", "lists") == "lists"]
     theirs = [r for r in results if r["code"] != "sphfluid"]
     if not theirs:
         return

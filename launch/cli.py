@@ -387,6 +387,9 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--threads", type=_positive_int, nargs="+", default=[1, 2],
                        help="numba thread counts to time (default: 1 2)")
     bench.add_argument("--steps", type=_positive_int, default=100, help="timed steps per case (default: 100)")
+    bench.add_argument("--neighbours", nargs="+", choices=("lists", "walk"), default=["lists"],
+                       help="neighbour search of each case: lists, walk (the 27-cell walk, no lists), or both "
+                            "side by side with their ratio (default: lists)")
     bench.add_argument("--external", action="store_true",
                        help="also run PySPH and SPlisHSPlasH on the same scene (if installed)")
     bench.add_argument("--peers", type=_positive_int, nargs="+", default=[1],

@@ -377,7 +377,7 @@ def _gather(peer: PeerRun, recorder: PeerRecorder, controls: Controls, loop: dic
         "wait_s_per_phase": dict(endpoint.wait_s),
         "ghosts": int(s.n - n), "ghosts_received": halo.ghosts_received, "leaks": sim.leaks,
         "kinetic_energy": sim.kinetic_energy(),
-        "neighbours_sum": int(sim.grid.counts[:n].sum()), "neighbours_max": int(sim.grid.counts[:n].max(initial=0)),
+        "neighbours_sum": sim.neighbours_sum, "neighbours_max": sim.neighbours_max,
         "neighbours_max_over_run": sim.max_neighbours, "rebalances": halo.rebalances,
         "dropped_messages": endpoint.dropped, "dropped": endpoint.drops, "threads": numba.get_num_threads(),
         "cuts": [list(c) for c in halo.dec.cuts], "controls": controls.applied,
@@ -469,7 +469,7 @@ def progress_summary(sim: Simulation, scene: Scene, world: int, t_start: float, 
 def make_summary(sim: Simulation, scene: Scene, loop: dict, t_setup: float, wall_total: float) -> dict:
     """The summary.json every run writes (a multi-peer run adds ``nodes.peer.peer_summary``)."""
     stages = sim.timers.summary()
-    counts = sim.grid.counts[: sim.state.n_owned]
+    n = sim.state.n_owned
     limits = {k: v for k, v in sim.limit_counts.items() if v}
     return {
         "scene": scene.scene.name,
@@ -496,8 +496,8 @@ def make_summary(sim: Simulation, scene: Scene, loop: dict, t_setup: float, wall
             name: {"mean_iterations": st["iterations"] / max(st["steps"], 1), "max_iterations": st["max"],
                    "unconverged_steps": st["unconverged"], "last_mean_error": st["last_error"]}
             for name, st in sim.solver_stats.items()} if sim.dfsph else {})},
-        "neighbours": {"mean": float(counts.mean()) if counts.size else 0.0,
-                       "max": int(counts.max()) if counts.size else 0, "max_over_run": sim.max_neighbours},
+        "neighbours": {"mean": sim.neighbours_sum / n if n else 0.0, "max": sim.neighbours_max,
+                       "max_over_run": sim.max_neighbours, "search": sim.model.neighbours},
         "leaks": sim.leaks,
         "max_compression": sim.max_compression,
         "kinetic_energy": sim.kinetic_energy(),

@@ -24,11 +24,9 @@ from sphcore.scene import Scene
 from sphcore.solvers import SOLVERS
 
 DTYPES = {"f32": np.float32, "f64": np.float64}
-# How the neighbour passes find their neighbours (stages.CHOICES "neighbours"; grid.py). Both visit the
-# same neighbours in the same order. Lists are the default on both backends: on 2 CPU cores they are
-# faster (docs/BENCHMARKS.md, scripts/bench_neighbours.py); the walk stores nothing per particle.
+# How the neighbour passes find their neighbours (run.neighbours; stages.CHOICES "neighbours"; grid.py).
+# Both visit the same neighbours in the same order; the walk stores nothing per particle.
 NEIGHBOURS = {"lists": grid_mod.NEIGHBOUR_LISTS, "walk": grid_mod.CELL_WALK}
-DEFAULT_NEIGHBOURS = "lists"
 
 
 def scene_value(scene: Scene, key: str):
@@ -62,7 +60,7 @@ class Model:
     def __init__(self, scene: Scene, precision: str | None = None, backend: str = "cpu",
                  neighbours: str | None = None):
         self.scene = scene
-        self.neighbours = neighbours or DEFAULT_NEIGHBOURS
+        self.neighbours = neighbours or scene.run.neighbours
         if self.neighbours not in NEIGHBOURS:
             raise ValueError(f"neighbours must be one of {', '.join(NEIGHBOURS)}, got {self.neighbours!r}")
         self.precision = precision or scene.run.precision

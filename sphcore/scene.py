@@ -191,6 +191,10 @@ class Boundary:
 class Run:
     precision: str = spec("auto", "floating point precision; auto = f64 on the CPU, f32 on a GPU (--precision "
                                   "overrides)", choices=("auto", "f32", "f64"))
+    neighbours: str = spec("lists", "how the neighbour passes find neighbours: lists (built once per step, "
+                                    "~256 B per particle; faster on the CPU) or walk (each pass walks the 27 "
+                                    "grid cells; no per-particle lists). Same neighbours, same order",
+                           choices=("lists", "walk"))
     log_every: int = spec(0, "steps between progress log lines when not on a terminal (0 = every 5 % of the run)",
                           range=(0, 10**9))
     max_density_ratio: float = spec(3.0, "stop with a diagnostic if some rho/rho0 exceeds this",

@@ -44,7 +44,7 @@ class Simulation:
     def __init__(self, scene: Scene, precision: str | None = None, backend: str = "cpu", device: int | None = None,
                  neighbours: str | None = None):
         """``backend`` "cpu" or "cuda"; ``device``: the GPU index for cuda (modulo the GPUs visible);
-        ``neighbours``: "lists" or "walk" (model.NEIGHBOURS; default model.DEFAULT_NEIGHBOURS)."""
+        ``neighbours``: "lists" or "walk" (model.NEIGHBOURS), overriding the scene's run.neighbours."""
         if backend not in BACKENDS:
             raise ValueError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
         self.backend = backend

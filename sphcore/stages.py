@@ -119,8 +119,20 @@ SCRATCH = (
 )
 SCRATCH_NAMES = frozenset(s.name for s in SCRATCH)
 
-REDUCTIONS = ("sum", "max")  # "sum": int64 (exact in any order); "max": float64 (any order)
-MAX_REDUCED = 4  # values of one kind a stage may reduce (the backends' result buffers)
+# How a stage's row values combine; each gives the same result in any order. name -> (the value's
+# type, the operation). The integer kinds share one int64 result buffer, "max" has a float64 one.
+REDUCTIONS = MappingProxyType({
+    "sum": ("int64", "+"),     # integer sum (exact)
+    "imax": ("int64", "max"),  # integer maximum (a count >= 0)
+    "max": ("float64", "max"),  # maximum of a real value >= 0 (the step statistics)
+})
+MAX_REDUCED = 4  # values of one type a stage may reduce (the backends' result buffers)
+
+
+def reduction_slots(reduce: tuple) -> list[tuple[str, int]]:
+    """(value type, index in that type's result buffer) of each reduced value of a stage."""
+    types = [REDUCTIONS[kind][0] for kind in reduce]
+    return [(t, types[:k].count(t)) for k, t in enumerate(types)]
 
 
 @dataclass(frozen=True)
@@ -177,9 +189,9 @@ class Stage:
                 raise TypeError(f"stage {self.name}: writes {a!r}, which {self.row.__name__} does not take")
         for r in self.reduce:
             if r not in REDUCTIONS:
-                raise TypeError(f"stage {self.name}: reduction {r!r} is not one of {REDUCTIONS}")
-        if max(self.reduce.count("max"), self.reduce.count("sum")) > MAX_REDUCED:
-            raise TypeError(f"stage {self.name}: more than {MAX_REDUCED} reduced values of one kind")
+                raise TypeError(f"stage {self.name}: reduction {r!r} is not one of {tuple(REDUCTIONS)}")
+        if any(slot >= MAX_REDUCED for _, slot in reduction_slots(self.reduce)):
+            raise TypeError(f"stage {self.name}: more than {MAX_REDUCED} reduced values of one type")
         if self.key and self.key.count(".") != 1:
             raise TypeError(f"stage {self.name}: key {self.key!r} must be 'section.name' of a scene key")
         return self
@@ -187,7 +199,7 @@ class Stage:
 
 # -- the stages, in the order a step may run them (solver.Simulation.stages orders them) ------------
 DENSITY = Stage("density", density_row, writes=("rho_c", "rho", "p", "fill"),
-                reduce=("sum", "max")).check()  # returns i's neighbour count: their sum and maximum
+                reduce=("sum", "imax")).check()  # returns i's neighbour count: their sum and maximum
 DFSPH_FACTOR = Stage("dfsph_factor", dfsph_factor_row, writes=("p", "wgrad", "inv_d", "lam_sum"),
                      reduce=("sum",)).check()  # returns rho_i / rho0 - 1 quantised: the mean density
 FORCES = Stage("forces", acceleration_row, writes=("a",)).check()

@@ -137,6 +137,12 @@ CASES = {
     "continuity_f64": lambda: steps_case(scene("tiny.toml", "sph.density='continuity'"), "f64", 3),
     "dfsph_f64": lambda: steps_case(scene("tiny.toml", "sph.solver='dfsph'", "time.dt=0.002"), "f64", 3),
     "dfsph_peers_f64": lambda: peers_case(scene("tiny.toml", "sph.solver='dfsph'", "time.dt=0.002"), "f64", 2),
+    # the cell walk (run.neighbours = "walk"): every neighbour pass walks the cells on the device
+    "walk_terms_f64": lambda: steps_case(scene("tiny.toml", "run.neighbours='walk'", "terms.xsph=0.3",
+                                               "terms.surface_tension=0.05", "terms.vorticity_confinement=0.01",
+                                               "sph.density='continuity'"), "f64", 2),
+    "walk_dfsph_peers_f64": lambda: peers_case(scene("tiny.toml", "run.neighbours='walk'", "sph.solver='dfsph'",
+                                                     "time.dt=0.002"), "f64", 2),
 }
 
 

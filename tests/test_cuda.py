@@ -29,8 +29,8 @@ TOL = {"f64": {"x": 1e-12, "v": 1e-12, "rho": 1e-12, "p": 1e-12, "a": 1e-11},
 
 # The cases in two groups of about equal cost, run side by side (the suite's other tests wait for
 # this fixture, so the second core would otherwise idle through its ~3-5 minutes)
-GROUPS = (["dfsph_f64", "tiny_f64", "terms_f64", "obstacle_f64"],
-          ["dfsph_peers_f64", "tiny_f32", "periodic_f64", "peers_f64", "continuity_f64"])
+GROUPS = (["dfsph_f64", "tiny_f64", "terms_f64", "obstacle_f64", "walk_terms_f64"],
+          ["dfsph_peers_f64", "tiny_f32", "periodic_f64", "peers_f64", "continuity_f64", "walk_dfsph_peers_f64"])
 
 
 def _parity(simulator: bool) -> dict:
@@ -82,7 +82,8 @@ def test_float32_steps_match_cpu(parity):
     _check(parity["tiny_f32"], "f32")
 
 
-@pytest.mark.parametrize("case", ["terms_f64", "periodic_f64", "obstacle_f64", "dfsph_f64", "continuity_f64"])
+@pytest.mark.parametrize("case", ["terms_f64", "periodic_f64", "obstacle_f64", "dfsph_f64", "continuity_f64",
+                                  "walk_terms_f64"])
 def test_options_match_cpu(parity, case):
     """Optional terms (XSPH, surface tension, vorticity confinement), leapfrog, Morris and Müller
     viscosity, linear EOS, cubic spline and Müller kernels, periodic axes, an obstacle, the DFSPH
@@ -90,7 +91,7 @@ def test_options_match_cpu(parity, case):
     _check(parity[case], "f64")
 
 
-@pytest.mark.parametrize("case", ["peers_f64", "dfsph_peers_f64"])
+@pytest.mark.parametrize("case", ["peers_f64", "dfsph_peers_f64", "walk_dfsph_peers_f64"])
 def test_peers_on_cuda_match_one_cpu_process(parity, case):
     r = parity[case]
     assert r["ghosts"] > 0  # the halo really carried particles
@@ -121,8 +122,11 @@ def test_every_kernel_compiles_to_ptx():
         compiled = json.loads(out.strip().splitlines()[-1])
         assert expected <= set(compiled), (precision, expected - set(compiled))
         # the default path of a scene (Wendland C2, Tait, artificial viscosity) is among them
-        assert "forces kernel=2 viscosity=1 periodic=0" in compiled, precision
-        assert "density kernel=2 eos=1 periodic=0 continuity=0" in compiled, precision
+        assert "forces kernel=2 viscosity=1 periodic=0 neighbours=0" in compiled, precision
+        assert "density kernel=2 eos=1 periodic=0 neighbours=0 continuity=0" in compiled, precision
+        # and every neighbour pass compiles walking the cells as well
+        walking = {s.name for s in stages.STAGES if "neighbours" in s.choices}
+        assert walking == {k.split()[0] for k in compiled if " neighbours=1" in k}, precision
         assert all(compiled.values()), (precision, [k for k, ok in compiled.items() if not ok])
 
 

@@ -36,7 +36,7 @@ from sphcore import state as state_fields
 from sphcore.backends import BackendUnavailable
 from sphcore.backends.engine import Engine
 from sphcore.backends.generate import cuda_source
-from sphcore.stages import ARGUMENTS, CHOICES, STAGES, covering_choices
+from sphcore.stages import ARGUMENTS, CHOICES, MAX_REDUCED, STAGES, covering_choices, reduction_slots
 
 SIMULATOR = bool(numba.config.ENABLE_CUDASIM)
 BLOCK = 128          # threads per block for row kernels
@@ -441,8 +441,9 @@ class CudaStages(Engine):
                       "wall_data": cuda.to_device(np.ascontiguousarray(w.data)),
                       "wall_tables": cuda.to_device(np.ascontiguousarray(w.tables)),
                       "lo": cuda.to_device(sim.model.lo)}
-        self.out_max = cuda.device_array(4, dtype=np.float64)  # a stage's "max" reductions
-        self.out_sum = cuda.device_array(4, dtype=np.int64)    # a stage's "sum" reductions
+        # a stage's reduced values (stages.REDUCTIONS): the integer kinds, and the real maxima
+        self.out = {"int64": cuda.device_array(MAX_REDUCED, dtype=np.int64),
+                    "float64": cuda.device_array(MAX_REDUCED, dtype=np.float64)}
         self.device_stale = True   # the host state was replaced: upload before the next stage
         self.host_stale = False    # the device ran a stage since the last download
         super().__init__(sim)
@@ -503,29 +504,17 @@ class CudaStages(Engine):
 
     def launch(self, stage, choices, n, arguments):
         """One thread per owned row; the stage's reductions come back as numbers."""
-        maxes, sums = stage.reduce.count("max"), stage.reduce.count("sum")
-        outs = []
-        if maxes:
-            self.out_max.copy_to_device(np.zeros(4))
-            outs.append(self.out_max)
-        if sums:
-            self.out_sum.copy_to_device(np.zeros(4, dtype=np.int64))
-            outs.append(self.out_sum)
+        slots = reduction_slots(stage.reduce)
+        kinds = [t for t in ("int64", "float64") if any(typ == t for typ, _ in slots)]
+        for t in kinds:
+            self.out[t].copy_to_device(np.zeros(MAX_REDUCED, dtype=t))
         if n:
-            KERNELS[stage.name](*choices)[blocks(n), BLOCK](n, *arguments, *outs)
+            KERNELS[stage.name](*choices)[blocks(n), BLOCK](n, *arguments, *(self.out[t] for t in kinds))
         if not stage.reduce:
             cuda.synchronize()
             return None
-        got_max = self.out_max.copy_to_host() if maxes else ()
-        got_sum = self.out_sum.copy_to_host() if sums else ()
-        values, k_max, k_sum = [], 0, 0
-        for kind in stage.reduce:
-            if kind == "max":
-                values.append(float(got_max[k_max]))
-                k_max += 1
-            else:
-                values.append(int(got_sum[k_sum]))
-                k_sum += 1
+        got = {t: self.out[t].copy_to_host() for t in kinds}
+        values = [int(got[t][j]) if t == "int64" else float(got[t][j]) for t, j in slots]
         return values[0] if len(values) == 1 else tuple(values)
 
     def bin(self):
@@ -562,15 +551,16 @@ def argument_types(dtype: str) -> dict:
     out = {name: by_kind[kind] for name, (kind, _) in ARGUMENTS.items()}
     out.update({s.name: by_kind["row" if s.components == 1 else "vec"] for s in SCRATCH})
     out["n"] = types.int64
-    out["out_max"] = types.Array(types.float64, 1, "C")
-    out["out_sum"] = types.Array(types.int64, 1, "C")
+    out["out_ints"] = types.Array(types.int64, 1, "C")
+    out["out_reals"] = types.Array(types.float64, 1, "C")
     return out
 
 
 def stage_signature(stage, dtype: str) -> tuple:
     """The argument types of ``stage``'s generated kernel (n, its arguments, its reduction outputs)."""
     t = argument_types(dtype)
-    outs = (("out_max",) if "max" in stage.reduce else ()) + (("out_sum",) if "sum" in stage.reduce else ())
+    slots = reduction_slots(stage.reduce)
+    outs = tuple(name for t, name in (("int64", "out_ints"), ("float64", "out_reals")) if any(typ == t for typ, _ in slots))
     return tuple(t[a] for a in ("n", *stage.arguments, *outs))
 
 

@@ -69,4 +69,4 @@ def density_row(kernel, eos, periodic, neighbours, continuity, prm, i, x, v, m, 
                 rho_c[i] = rho_i
     rho[i] = rho_i
     p[i] = pressure(eos, rho_i, prm.rho0, prm.c0, prm.clamp_negative)
-    return found * 1, 1.0 * found  # (found * 1: a returned loop counter trips numba's parfor reduction lookup)
+    return found, found
