@@ -29,6 +29,7 @@ import numpy as np
 from numba import literally, njit, prange
 
 from sphcore.backends.literal import literal_dispatch
+from sphcore.physics.real import like
 from sphcore.state import CARRIED
 
 
@@ -62,8 +63,9 @@ class Cells(NamedTuple):
 @njit(inline="always")
 def cell_index(x, i, d, origin, inv_cell, ncell):
     """Cell coordinate of row i along axis d, clamped to the grid (the one definition of "the cell
-    of a particle": the grid and the decomposition's owners both use it)."""
-    return min(max(int(math.floor((x[i, d] - origin[d]) * inv_cell[d])), 0), ncell[d] - 1)
+    of a particle": the grid and the decomposition's owners both use it). int() truncates toward
+    zero, which after the clamp to >= 0 is the floor; math.floor would compute in float64 on a GPU."""
+    return min(max(int((x[i, d] - origin[d]) * inv_cell[d]), 0), ncell[d] - 1)
 
 
 @njit(cache=True, inline="always")
@@ -71,7 +73,7 @@ def minimum_image(d, L):
     """d (a coordinate difference) mapped to [-L/2, L/2] on a periodic axis of length L. Positions
     are wrapped into the period every step, so |d| < L and one shift suffices. (A branch, not
     d - L rint(d / L): numba-cuda has no rint, and math.floor would promote float32 to float64.)"""
-    half = 0.5 * L
+    half = like(L, 0.5) * L
     if d > half:
         return d - L
     if d < -half:
@@ -187,7 +189,10 @@ def gather_rows_1d(src, perm, dst):
 @njit(cache=True, inline="always")
 def _scan_range(i, lo, hi, x, xi, yi, zi, H2, period, periodic, nbr, count, cap):
     """Append to row i of ``nbr`` every j != i in [lo, hi) within the support; count past the
-    capacity so the caller can grow it and rebuild."""
+    capacity so the caller can grow it and rebuild. Branch-free: every candidate is stored at the
+    next free column (column ``cap``, a spare, once the list is full) and the count advances only for
+    a neighbour; about a third of the candidates are accepted, in no pattern a branch predictor could
+    learn, so a branch here mispredicts on most particles' every few candidates."""
     for j in range(lo, hi):
         dx = xi - x[j, 0]
         dy = yi - x[j, 1]
@@ -199,10 +204,9 @@ def _scan_range(i, lo, hi, x, xi, yi, zi, H2, period, periodic, nbr, count, cap)
                 dy = minimum_image(dy, period[1])
             if period[2] > 0.0:
                 dz = minimum_image(dz, period[2])
-        if dx * dx + dy * dy + dz * dz < H2 and j != i:
-            if count < cap:
-                nbr[i, count] = j
-            count += 1
+        inside = (dx * dx + dy * dy + dz * dz < H2) & (j != i)
+        nbr[i, min(count, cap)] = j
+        count += 1 if inside else 0
     return count
 
 
@@ -210,12 +214,13 @@ def _scan_range(i, lo, hi, x, xi, yi, zi, H2, period, periodic, nbr, count, cap)
 def _face_gap2(offset, xi, lo_face, hi_face):
     """Squared distance from coordinate xi to the neighbouring cell at ``offset`` (-1, 0, +1), given
     the faces of xi's own cell; 0 for the own cell."""
+    zero = like(xi, 0.0)
     if offset < 0:
-        g = max(xi - lo_face, 0.0)
+        g = max(xi - lo_face, zero)
     elif offset > 0:
-        g = max(hi_face - xi, 0.0)
+        g = max(hi_face - xi, zero)
     else:
-        return 0.0
+        return zero
     return g * g
 
 
@@ -227,14 +232,14 @@ def neighbour_row(periodic, i, x, contiguous, cell_begin, cell_end, origin, cell
     particle is skipped, which removes about a quarter of the candidates."""
     nx, ny, nz = ncell[0], ncell[1], ncell[2]
     px, py, pz = period[0] > 0.0, period[1] > 0.0, period[2] > 0.0
-    cap = nbr.shape[1]
+    cap = nbr.shape[1] - 1  # the last column is the spare of _scan_range
     xi, yi, zi = x[i, 0], x[i, 1], x[i, 2]
-    ix = min(max(int(math.floor((xi - origin[0]) * inv_cell[0])), 0), nx - 1)
-    iy = min(max(int(math.floor((yi - origin[1]) * inv_cell[1])), 0), ny - 1)
-    iz = min(max(int(math.floor((zi - origin[2]) * inv_cell[2])), 0), nz - 1)
-    x_lo = origin[0] + ix * cell[0]
-    y_lo = origin[1] + iy * cell[1]
-    z_lo = origin[2] + iz * cell[2]
+    ix = min(max(int((xi - origin[0]) * inv_cell[0]), 0), nx - 1)
+    iy = min(max(int((yi - origin[1]) * inv_cell[1]), 0), ny - 1)
+    iz = min(max(int((zi - origin[2]) * inv_cell[2]), 0), nz - 1)
+    x_lo = origin[0] + like(xi, ix) * cell[0]
+    y_lo = origin[1] + like(yi, iy) * cell[1]
+    z_lo = origin[2] + like(zi, iz) * cell[2]
     gx_left = _face_gap2(-1, xi, x_lo, x_lo + cell[0])
     gx_right = _face_gap2(1, xi, x_lo, x_lo + cell[0])
     count = 0
@@ -283,12 +288,12 @@ def home_cell(x, i, c):
     """(ix, iy, iz, gap2 to the lower and upper x, y, z faces) of row i's cell: where the walk
     starts. The same cell and gaps as neighbour_row computes, so the walk visits what the list holds."""
     xi, yi, zi = x[i, 0], x[i, 1], x[i, 2]
-    ix = min(max(int(math.floor((xi - c.ox) * c.ux)), 0), c.nx - 1)
-    iy = min(max(int(math.floor((yi - c.oy) * c.uy)), 0), c.ny - 1)
-    iz = min(max(int(math.floor((zi - c.oz) * c.uz)), 0), c.nz - 1)
-    x_lo = c.ox + ix * c.sx
-    y_lo = c.oy + iy * c.sy
-    z_lo = c.oz + iz * c.sz
+    ix = min(max(int((xi - c.ox) * c.ux), 0), c.nx - 1)
+    iy = min(max(int((yi - c.oy) * c.uy), 0), c.ny - 1)
+    iz = min(max(int((zi - c.oz) * c.uz), 0), c.nz - 1)
+    x_lo = c.ox + like(xi, ix) * c.sx
+    y_lo = c.oy + like(yi, iy) * c.sy
+    z_lo = c.oz + like(zi, iz) * c.sz
     return (ix, iy, iz, _face_gap2(-1, xi, x_lo, x_lo + c.sx), _face_gap2(1, xi, x_lo, x_lo + c.sx),
             _face_gap2(-1, yi, y_lo, y_lo + c.sy), _face_gap2(1, yi, y_lo, y_lo + c.sy),
             _face_gap2(-1, zi, z_lo, z_lo + c.sz), _face_gap2(1, zi, z_lo, z_lo + c.sz))
@@ -313,8 +318,8 @@ def cell_span(s, home, c, cell_begin, cell_end):
     dz = s // 9 - 1
     dy = (s // 3) % 3 - 1
     dx = s % 3 - 1
-    g = gzl if dz < 0 else (gzr if dz > 0 else 0.0 * gzl)
-    g = g + (gyl if dy < 0 else (gyr if dy > 0 else 0.0 * gyl))
+    g = gzl if dz < 0 else (gzr if dz > 0 else like(gzl, 0.0))
+    g = g + (gyl if dy < 0 else (gyr if dy > 0 else like(gyl, 0.0)))
     if dx != 0:
         g = g + (gxl if dx < 0 else gxr)
     if g >= c.H2:
@@ -345,7 +350,7 @@ class Grid:
     origin (3,) m and cell (3,) m define the cells; ncell (3,) their number per axis; period (3,) is
     the period length along periodic axes and 0 elsewhere. After ``bin``, ``cell_begin`` and
     ``cell_end`` (ncells,) int64 hold the rows of every cell: owned rows (the first n_owned) and
-    ghost rows (after them) are each sorted by (cell, id); ``nbr`` (n, capacity) int32 and ``counts`` (n,)
+    ghost rows (after them) are each sorted by (cell, id); ``nbr`` (n, capacity + 1) int32 (a spare column) and ``counts`` (n,)
     int32 the neighbour list (self excluded), grown automatically when a particle has more
     neighbours than the capacity.
     """
@@ -385,7 +390,7 @@ class Grid:
         self.cell_end = np.zeros(self.ncells, dtype=np.int64)
         self.contiguous = True
         self.capacity = capacity
-        self.nbr = np.zeros((0, capacity), dtype=np.int32)
+        self.nbr = np.zeros((0, capacity + 1), dtype=np.int32)  # + the builder's spare column
         self.counts = np.zeros(0, dtype=np.int32)
         self._keys = np.zeros(0, dtype=np.int64)
         self._perm = np.zeros(0, dtype=np.int64)
@@ -428,7 +433,7 @@ class Grid:
     def build_neighbours(self, x, n_query):
         """Neighbour list of rows 0..n_query-1 against all rows of x (which must be sorted)."""
         if self.nbr.shape[0] < n_query:
-            self.nbr = np.empty((n_query, self.capacity), dtype=np.int32)
+            self.nbr = np.empty((n_query, self.capacity + 1), dtype=np.int32)
             self.counts = np.empty(n_query, dtype=np.int32)
         while True:
             _build_neighbours(int(self.periodic), x, n_query, self.contiguous, self.cell_begin, self.cell_end,
@@ -438,7 +443,7 @@ class Grid:
             if most <= self.capacity:
                 return most
             self.capacity = int(most * 1.25) + 8
-            self.nbr = np.empty((max(n_query, self.nbr.shape[0]), self.capacity), dtype=np.int32)
+            self.nbr = np.empty((max(n_query, self.nbr.shape[0]), self.capacity + 1), dtype=np.int32)
 
     def cells_of(self, x):
         """(n, 3) int64 cell coordinates of positions x (n, 3)."""

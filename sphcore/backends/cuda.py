@@ -282,7 +282,7 @@ class DeviceGrid:
         self._fill = cuda.device_array(2 * self.ncells, dtype=np.int64)
         self._small = cuda.device_array(1, dtype=np.int64)
         self._max = cuda.device_array(1, dtype=np.int32)
-        self.d_nbr = cuda.device_array((0, capacity), dtype=np.int32, order="F")
+        self.d_nbr = cuda.device_array((0, capacity + 1), dtype=np.int32, order="F")  # + the builder's spare
         self.d_counts = cuda.device_array(0, dtype=np.int32)
         self.d_perm = cuda.device_array(0, dtype=np.int64)
         self._keys = cuda.device_array(0, dtype=np.int64)
@@ -340,7 +340,7 @@ class DeviceGrid:
         Returns the longest list."""
         self.n_query = n_query
         if self.d_nbr.shape[0] < n_query:
-            self.d_nbr = cuda.device_array((n_query, self.capacity), dtype=np.int32, order="F")
+            self.d_nbr = cuda.device_array((n_query, self.capacity + 1), dtype=np.int32, order="F")
             self.d_counts = cuda.device_array(n_query, dtype=np.int32)
         if n_query == 0:
             return 0
@@ -355,7 +355,7 @@ class DeviceGrid:
             if most <= self.capacity:
                 return most
             self.capacity = int(most * 1.25) + 8
-            self.d_nbr = cuda.device_array((max(n_query, self.d_nbr.shape[0]), self.capacity), dtype=np.int32,
+            self.d_nbr = cuda.device_array((max(n_query, self.d_nbr.shape[0]), self.capacity + 1), dtype=np.int32,
                                            order="F")
 
     def bin(self, d):

@@ -49,6 +49,7 @@ from numba import njit
 from sphcore.physics.eos import sound_speed_sq
 from sphcore.physics.kernels import dw_dr_over_r
 from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
+from sphcore.physics.real import like
 
 
 @njit(cache=True, inline="always")
@@ -67,14 +68,14 @@ def hydrostatic_difference(rho, c_sq, gx, gy, gz, x_jix, x_jiy, x_jiz):
 def diffusion_pair(m_j, rho_i, rho_j, hydrostatic_ji, dw_over_r):
     """Neighbour j's share of the delta term without its factor delta h c0:
     psi_ij . grad W_ij m_j / rho_j = -2 (rho_ji - rho^H_ji) dW/dr / r m_j / rho_j (x_ji . x_ij = -r^2)."""
-    return -2.0 * (rho_j - rho_i - hydrostatic_ji) * dw_over_r * m_j / rho_j
+    return like(rho_j, -2.0) * (rho_j - rho_i - hydrostatic_ji) * dw_over_r * m_j / rho_j
 
 
 @njit(cache=True, inline="always")
 def diffusion_row(kernel, eos, periodic, neighbours, prm, i, x, m, rho, nbr, counts, cells, cell_begin, cell_end, drho):
     """drho_i = the delta-SPH density diffusion with its hydrostatic correction.   (continuity.py)"""
     rho_i = rho[i]
-    diff = 0.0 * rho_i
+    diff = like(rho_i, 0.0)
     home = walk_start(neighbours, x, i, cells)
     for span in range(spans(neighbours)):
         k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
@@ -87,7 +88,7 @@ def diffusion_row(kernel, eos, periodic, neighbours, prm, i, x, m, rho, nbr, cou
                 continue
             g = dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
             # (dx, dy, dz) = x_i - x_j; the pair's mean density sets the hydrostatic step (symmetric in i, j)
-            rho_m = 0.5 * (rho_i + rho[j])
+            rho_m = like(rho_i, 0.5) * (rho_i + rho[j])
             hydro = hydrostatic_difference(rho_m, sound_speed_sq(eos, rho_m, prm.rho0, prm.c0),
                                            prm.gravity_x, prm.gravity_y, prm.gravity_z, -dx, -dy, -dz)
             diff += diffusion_pair(m[j], rho_i, rho[j], hydro, g)

@@ -16,6 +16,7 @@ from sphcore.physics.eos import pressure
 from sphcore.physics.kernels import dw_dr_over_r
 from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
 from sphcore.physics.walls import fill_fraction, wall_density_gradient, wall_terms
+from sphcore.physics.real import like
 
 
 @njit(cache=True, inline="always")
@@ -34,7 +35,7 @@ def density_row(kernel, eos, periodic, neighbours, continuity, prm, i, x, v, m, 
     sum and maximum over the rows are the step's neighbour statistics). (density.py, continuity.py,
     eos.py, walls.py)"""
     rho_i = m[i] * prm.w0
-    rate = 0.0 * rho_i
+    rate = like(rho_i, 0.0)
     found = 0  # neighbours of i (the step's neighbour statistics)
     home = walk_start(neighbours, x, i, cells)
     for span in range(spans(neighbours)):
@@ -51,7 +52,7 @@ def density_row(kernel, eos, periodic, neighbours, continuity, prm, i, x, v, m, 
                 rate += density_rate_pair(m[j], v[i, 0] - v[j, 0], v[i, 1] - v[j, 1], v[i, 2] - v[j, 2],
                                           g * dx, g * dy, g * dz)
     drho, _, _, _ = wall_terms(kernel, prm, False, wall_kind, wall_data, wall_tables, x[i, 0], x[i, 1], x[i, 2],
-                               0.0 * rho_i, rho_i, 0.0 * rho_i, 0.0 * rho_i, 0.0 * rho_i)
+                               like(rho_i, 0.0), rho_i, like(rho_i, 0.0), like(rho_i, 0.0), like(rho_i, 0.0))
     theta = fill_fraction(rho_i, drho, prm.rho0)
     fill[i] = theta
     rho_i += theta * drho

@@ -53,6 +53,7 @@ from sphcore.physics.continuity import density_rate_pair
 from sphcore.physics.kernels import dw_dr_over_r
 from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
 from sphcore.physics.walls import wall_density_gradient
+from sphcore.physics.real import like
 
 # The solvers' convergence test sums |s_i| / rho0 over all particles of all peers. Each row's share is
 # counted in units of 2^-32 as an integer, so that the sum — and therefore the number of iterations —
@@ -102,7 +103,8 @@ ERROR_CAP = 16.0
 @njit(cache=True, inline="always")
 def quantized_offset(rho_i, rho0):
     """rho_i / rho0 - 1 as a signed integer count of 2^-32 (capped at +-ERROR_CAP): summed over all
-    particles of all peers in any order, the mean density of a closed flow (``reference_density``)."""
+    particles of all peers in any order, the mean density of a closed flow (``reference_density``).
+    In float64 whatever the run's precision (once per row): the quantum must be the same everywhere."""
     return int(max(-ERROR_CAP, min(rho_i / rho0 - 1.0, ERROR_CAP)) * ERROR_QUANTUM)
 
 
@@ -151,7 +153,7 @@ def increment(clamp, dl, lam_sum_i):
 def inverse_diagonal(gx, gy, gz, wx, wy, wz, sum_sq, d0):
     """1 / max(D_i, D_FLOOR d0) (module docstring); d0 is D of a full neighbourhood at rest."""
     d = (gx + wx) * (gx + wx) + (gy + wy) * (gy + wy) + (gz + wz) * (gz + wz) + sum_sq
-    return 1.0 / max(d, D_FLOOR * d0)
+    return like(d, 1.0) / max(d, like(d, D_FLOOR) * d0)
 
 
 @njit(cache=True, inline="always")
@@ -160,10 +162,10 @@ def dfsph_factor_row(kernel, periodic, neighbours, prm, i, x, m, rho, nbr, count
     """DFSPH set-up of row i at the step's positions: the wall gradient g_i^wall, 1 / D_i, and p_i = 0
     (the forces stage then gives the non-pressure accelerations); returns rho_i / rho0 - 1 quantised
     (dfsph.quantized_offset; summed over all rows: the mean density).   (dfsph.py)"""
-    gx = 0.0 * prm.H
-    gy = 0.0 * prm.H
-    gz = 0.0 * prm.H
-    sum_sq = 0.0 * prm.H
+    gx = like(prm.H, 0.0)
+    gy = like(prm.H, 0.0)
+    gz = like(prm.H, 0.0)
+    sum_sq = like(prm.H, 0.0)
     home = walk_start(neighbours, x, i, cells)
     for span in range(spans(neighbours)):
         k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
@@ -185,8 +187,8 @@ def dfsph_factor_row(kernel, periodic, neighbours, prm, i, x, m, rho, nbr, count
     wgrad[i, 1] = wy
     wgrad[i, 2] = wz
     inv_d[i] = inverse_diagonal(gx, gy, gz, wx, wy, wz, sum_sq, prm.dfsph_d0)
-    p[i] = 0.0 * rho_i
-    lam_sum[i] = 0.0 * rho_i  # the divergence solve starts from zero
+    p[i] = like(rho_i, 0.0)
+    lam_sum[i] = like(rho_i, 0.0)  # the divergence solve starts from zero
     return quantized_offset(rho_i, prm.rho0)
 
 
@@ -216,8 +218,8 @@ def dfsph_source_row(kernel, periodic, neighbours, divergence, prm, i, x, v, m, 
     s = source(divergence, rho[i], rho_ref, rate, dt, share)
     inv = inv_d[i]
     if found == 0:  # alone: no neighbour to push, nothing to solve
-        lam[i] = 0.0 * s
-        return quantized_error(0.0 * s)
+        lam[i] = like(s, 0.0)
+        return quantized_error(like(s, 0.0))
     dl = increment(prm.clamp_negative, prm.dfsph_omega * s * inv, lam_sum[i])  # inv = 1 / max(D_i, d0)
     lam[i] = dl
     return quantized_error(abs(dl) / inv / prm.rho0)
@@ -259,7 +261,7 @@ def dfsph_kick_row(i, v, a, dt, kappa, v_star, lam, lam_sum):
     for c in range(3):
         v_star[i, c] = v[i, c] + dt * a[i, c]
     lam[i] = kappa[i] * dt * dt
-    lam_sum[i] = 0.0 * dt
+    lam_sum[i] = like(dt, 0.0)
 
 
 @njit(cache=True, inline="always")

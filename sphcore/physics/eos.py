@@ -11,6 +11,8 @@ surface); scenes without a free surface (Taylor-Green) keep negative pressures.
 """
 from numba import njit
 
+from sphcore.physics.real import like
+
 
 @njit(cache=True, inline="always")
 def pressure(eos, rho, rho0, c0, clamp_negative):
@@ -21,9 +23,9 @@ def pressure(eos, rho, rho0, c0, clamp_negative):
         ratio = rho / rho0
         r2 = ratio * ratio
         r4 = r2 * r2
-        p = rho0 * c0 * c0 / 7.0 * (r4 * r2 * ratio - 1.0)
-    if clamp_negative and p < 0.0:
-        p = 0.0 * p
+        p = rho0 * c0 * c0 / like(rho, 7.0) * (r4 * r2 * ratio - like(rho, 1.0))
+    if clamp_negative and p < like(p, 0.0):
+        p = like(p, 0.0)
     return p
 
 
@@ -31,7 +33,7 @@ def pressure(eos, rho, rho0, c0, clamp_negative):
 def sound_speed_sq(eos, rho, rho0, c0):
     """dp/drho at rho (m^2/s^2): c0^2 (linear), c0^2 (rho/rho0)^(gamma-1) (Tait)."""
     if eos == 0:  # EOS.LINEAR
-        return c0 * c0 + 0.0 * rho
+        return c0 * c0 + like(rho, 0.0)
     ratio = rho / rho0
     r2 = ratio * ratio
     return c0 * c0 * (r2 * r2 * r2)

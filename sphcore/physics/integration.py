@@ -6,6 +6,7 @@ import math
 from numba import njit
 
 from sphcore.physics.walls import signed_distance
+from sphcore.physics.real import like
 
 
 @njit(cache=True, inline="always")
@@ -15,7 +16,7 @@ def integrate_row(integrator, use_drift, i, x, v, a, dv, dt, dt_prev):
     if integrator == 0:
         kick = dt
     else:
-        kick = 0.5 * (dt_prev + dt)
+        kick = like(dt, 0.5) * (dt_prev + dt)
     for c in range(3):
         v[i, c] += kick * a[i, c]
         if use_drift:
@@ -31,7 +32,7 @@ def wrap(x, lo, L):
         s = x - lo
         s -= L * math.floor(s / L)
         if s >= L:  # round-off of the floor above
-            s = 0.0 * L
+            s = like(L, 0.0)
         return lo + s
     return x
 
@@ -41,7 +42,7 @@ def _reflect(v, i, c, vn, nc, prm):
     """Velocity component c after a wall contact: tangential part damped by friction, normal part
     reversed with restitution."""
     vt = v[i, c] - vn * nc
-    v[i, c] = vt * (1.0 - prm.friction) - prm.restitution * vn * nc
+    v[i, c] = vt * (like(vt, 1.0) - prm.friction) - prm.restitution * vn * nc
 
 
 @njit(cache=True, inline="always")
@@ -77,8 +78,8 @@ def statistics_row(i, x, v, a, rho, rho0):
     and the sum of ``bad``: 1 if row i holds NaN or Inf (then the others are 0), else 0."""
     v2 = v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1] + v[i, 2] * v[i, 2]
     a2 = a[i, 0] * a[i, 0] + a[i, 1] * a[i, 1] + a[i, 2] * a[i, 2]
-    r = rho[i] / rho0 - 1.0
+    r = rho[i] / rho0 - 1.0  # float64, as the reduction that takes the maxima (stages.REDUCTIONS "max")
     if math.isfinite(v2 + a2 + r + x[i, 0] + x[i, 1] + x[i, 2]):
         return v2, a2, r, 0
-    zero = 0.0 * rho0  # rho0 is finite and of the run's precision, like v2, a2 and r
+    zero = like(rho0, 0.0)  # rho0 is finite and of the run's precision, like v2, a2 and r
     return zero, zero, zero, 1

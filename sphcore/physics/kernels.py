@@ -33,6 +33,7 @@ import math
 from numba import njit
 
 from sphcore.choices import Kernel
+from sphcore.physics.real import like
 
 
 def kernel_constants(kernel: Kernel, dim: int, H: float) -> tuple[float, float, float]:
@@ -59,42 +60,42 @@ def kernel_constants(kernel: Kernel, dim: int, H: float) -> tuple[float, float, 
 def w(kernel, r, H, s_w):
     """Density kernel W(r) of the family ``kernel`` (poly6 for MULLER)."""
     if r >= H:
-        return 0.0 * s_w
+        return like(s_w, 0.0)
     if kernel == 0:  # Kernel.MULLER: poly6
         d = H * H - r * r
         return s_w * d * d * d
     elif kernel == 1:  # Kernel.CUBIC_SPLINE
-        q = 2.0 * r / H
-        if q < 1.0:
-            return s_w * (1.0 - 1.5 * q * q + 0.75 * q * q * q)
-        t = 2.0 - q
-        return 0.25 * s_w * t * t * t
+        q = like(r, 2.0) * r / H
+        if q < like(q, 1.0):
+            return s_w * (like(q, 1.0) - like(q, 1.5) * q * q + like(q, 0.75) * q * q * q)
+        t = like(q, 2.0) - q
+        return like(s_w, 0.25) * s_w * t * t * t
     else:  # Kernel.WENDLAND_C2
         q = r / H
-        t = 1.0 - q
+        t = like(q, 1.0) - q
         t2 = t * t
-        return s_w * t2 * t2 * (1.0 + 4.0 * q)
+        return s_w * t2 * t2 * (like(q, 1.0) + like(q, 4.0) * q)
 
 
 @njit(cache=True, inline="always")
 def dw_dr(kernel, r, H, s_g):
     """Radial derivative dW/dr of the gradient kernel (spiky for MULLER); grad W = dW/dr * x_ij / r."""
     if r >= H:
-        return 0.0 * s_g
+        return like(s_g, 0.0)
     if kernel == 0:  # Kernel.MULLER: spiky
         t = H - r
-        return -3.0 * s_g * t * t
+        return like(s_g, -3.0) * s_g * t * t
     elif kernel == 1:  # Kernel.CUBIC_SPLINE
-        h = 0.5 * H
+        h = like(H, 0.5) * H
         q = r / h
-        if q < 1.0:
-            return s_g / h * (-3.0 * q + 2.25 * q * q)
-        t = 2.0 - q
-        return -0.75 * s_g / h * t * t
+        if q < like(q, 1.0):
+            return s_g / h * (like(q, -3.0) * q + like(q, 2.25) * q * q)
+        t = like(q, 2.0) - q
+        return like(s_g, -0.75) * s_g / h * t * t
     else:  # Kernel.WENDLAND_C2
         q = r / H
-        t = 1.0 - q
-        return -20.0 * s_g / H * q * t * t * t
+        t = like(q, 1.0) - q
+        return like(s_g, -20.0) * s_g / H * q * t * t * t
 
 
 @njit(cache=True, inline="always")
@@ -102,26 +103,26 @@ def dw_dr_over_r(kernel, r, H, s_g):
     """(dW/dr) / r, so that grad W = dw_dr_over_r * x_ij. Division-free for the cubic spline (inner
     part) and Wendland C2: divisions bound the force pass, several per pair otherwise."""
     if r >= H:
-        return 0.0 * s_g
+        return like(s_g, 0.0)
     if kernel == 0:  # Kernel.MULLER: spiky
         t = H - r
-        return -3.0 * s_g * t * t / r
+        return like(s_g, -3.0) * s_g * t * t / r
     elif kernel == 1:  # Kernel.CUBIC_SPLINE
-        h = 0.5 * H
+        h = like(H, 0.5) * H
         q = r / h
-        if q < 1.0:
-            return s_g / (h * h) * (-3.0 + 2.25 * q)
-        t = 2.0 - q
-        return -0.75 * s_g / h * t * t / r
+        if q < like(q, 1.0):
+            return s_g / (h * h) * (like(q, -3.0) + like(q, 2.25) * q)
+        t = like(q, 2.0) - q
+        return like(s_g, -0.75) * s_g / h * t * t / r
     else:  # Kernel.WENDLAND_C2: dW/dr = -20 s q (1-q)^3 / H and q / r = 1 / H
         q = r / H
-        t = 1.0 - q
-        return -20.0 * s_g / (H * H) * t * t * t
+        t = like(q, 1.0) - q
+        return like(s_g, -20.0) * s_g / (H * H) * t * t * t
 
 
 @njit(cache=True, inline="always")
 def lap_w_viscosity(r, H, s_l):
     """Laplacian of Müller's viscosity kernel, s_l (H - r) for r < H (Müller 2003 eq. 22)."""
     if r >= H:
-        return 0.0 * s_l
+        return like(s_l, 0.0)
     return s_l * (H - r)

@@ -14,6 +14,7 @@ from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
 from sphcore.physics.pressure import pressure_pair
 from sphcore.physics.viscosity import artificial_pair, morris_pair, muller_pair
 from sphcore.physics.walls import wall_terms, wall_viscosity
+from sphcore.physics.real import like
 
 
 @njit(cache=True, inline="always")
@@ -27,9 +28,9 @@ def acceleration_row(kernel, viscosity, periodic, neighbours, prm, i, x, v, m, r
         bx += cx
         by += cy
         bz += cz
-    ax = bx * 1.0
-    ay = by * 1.0
-    az = bz * 1.0
+    ax = bx
+    ay = by
+    az = bz
     rho_i = rho[i]
     p_i = p[i]
     p_rho2_i = p_i / (rho_i * rho_i)

@@ -21,6 +21,7 @@ import math
 from numba import njit
 
 from sphcore.grid import CELL_WALK, SPANS, cell_span, home_cell, minimum_image
+from sphcore.physics.real import like
 
 
 @njit(cache=True, inline="always")
@@ -44,7 +45,7 @@ def walk_start(neighbours, x, i, cells):
     """Row i's home cell and face gaps for the walk (grid.home_cell); a placeholder for lists."""
     if neighbours == CELL_WALK:
         return home_cell(x, i, cells)
-    z = 0.0
+    z = like(x, 0.0)  # the gaps' type (grid._face_gap2)
     return 0, 0, 0, z, z, z, z, z, z
 
 

@@ -26,6 +26,7 @@ import math
 from sphcore.physics.kernels import dw_dr_over_r, w
 from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
 from sphcore.physics.walls import signed_distance
+from sphcore.physics.real import like
 
 SURFACE_CONCENTRATION = 0.9  # C_i below this marks a particle of the free-surface layer
 
@@ -41,9 +42,9 @@ def shifting_row(kernel, periodic, neighbours, add, prm, i, x, v, m, rho, nbr, c
                  wall_kind, wall_data, dv):
     """Particle shifting as a drift velocity, -A h |v_i| grad C_i, free-surface and wall-normal
     components removed (shifting.py); added to dv if ``add`` (XSPH wrote it), else written."""
-    gx = 0.0 * prm.H
-    gy = 0.0 * prm.H
-    gz = 0.0 * prm.H
+    gx = like(prm.H, 0.0)
+    gy = like(prm.H, 0.0)
+    gz = like(prm.H, 0.0)
     c = m[i] / prm.rho0 * prm.w0
     home = walk_start(neighbours, x, i, cells)
     for span in range(spans(neighbours)):
@@ -61,9 +62,9 @@ def shifting_row(kernel, periodic, neighbours, add, prm, i, x, v, m, rho, nbr, c
             gy += f * dy
             gz += f * dz
     if c < SURFACE_CONCENTRATION:  # free-surface layer: grad C is the surface's, not disorder's
-        gx = 0.0 * gx
-        gy = 0.0 * gy
-        gz = 0.0 * gz
+        gx = like(gx, 0.0)
+        gy = like(gy, 0.0)
+        gz = like(gz, 0.0)
     for q in range(wall_kind.shape[0]):  # near a wall: no shift along its normal
         d, nx, ny, nz = signed_distance(wall_kind[q], wall_data[q], x[i, 0], x[i, 1], x[i, 2])
         if d < prm.H:

@@ -14,6 +14,7 @@ from numba import njit
 import math
 from sphcore.physics.kernels import dw_dr_over_r, lap_w_viscosity
 from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
+from sphcore.physics.real import like
 
 
 @njit(cache=True, inline="always")
@@ -32,17 +33,17 @@ def colour_laplacian_pair(m_j, rho_j, lap):
 def surface_tension_factor(sigma, lap_c, n_norm, rho_i, threshold):
     """Scalar g so that a_i += g * n_i; zero away from the surface (|n| <= threshold)."""
     if n_norm <= threshold:
-        return 0.0 * sigma
+        return like(sigma, 0.0)
     return -sigma * lap_c / (n_norm * rho_i)
 
 
 @njit(cache=True, inline="always")
 def surface_tension_row(kernel, periodic, neighbours, prm, i, x, m, rho, nbr, counts, cells, cell_begin, cell_end, a):
     """Colour-field surface tension, a_i += -sigma lap c_i n_i / (|n_i| rho_i).   (surface_tension.py)"""
-    gx = 0.0 * prm.H
-    gy = 0.0 * prm.H
-    gz = 0.0 * prm.H
-    lap_c = 0.0 * prm.H
+    gx = like(prm.H, 0.0)
+    gy = like(prm.H, 0.0)
+    gz = like(prm.H, 0.0)
+    lap_c = like(prm.H, 0.0)
     home = walk_start(neighbours, x, i, cells)
     for span in range(spans(neighbours)):
         k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)

@@ -18,6 +18,8 @@ All three are symmetric in i and j and antisymmetric in v_ij, so they conserve l
 """
 from numba import njit
 
+from sphcore.physics.real import like
+
 
 @njit(cache=True, inline="always")
 def artificial_pair(m_j, vdotx, r2, rho_i, rho_j, dw_over_r, alpha, c0, h):
@@ -26,8 +28,9 @@ def artificial_pair(m_j, vdotx, r2, rho_i, rho_j, dw_over_r, alpha, c0, h):
     Written without a branch on the sign of v_ij . x_ij (min(., 0) instead): the sign is random from
     pair to pair, and a mispredicted branch per pair cost more than the arithmetic it skips.
     -m_j Pi_ij = 2 m_j alpha c0 h min(v.x, 0) / ((r^2 + 0.01 h^2)(rho_i + rho_j))."""
-    approaching = min(vdotx, 0.0)
-    return 2.0 * m_j * alpha * c0 * h * approaching * dw_over_r / ((r2 + 0.01 * h * h) * (rho_i + rho_j))
+    approaching = min(vdotx, like(vdotx, 0.0))
+    return (like(m_j, 2.0) * m_j * alpha * c0 * h * approaching * dw_over_r
+            / ((r2 + like(h, 0.01) * h * h) * (rho_i + rho_j)))
 
 
 @njit(cache=True, inline="always")
@@ -42,4 +45,4 @@ def morris_pair(m_j, r2, rho_i, rho_j, dw_over_r, mu, h):
 
     x_ij . grad_i W_ij = dW/dr * r, so the factor is 2 mu m_j r^2 (dW/dr / r) / (rho_i rho_j (r^2 + eta^2)).
     """
-    return m_j * 2.0 * mu * r2 * dw_over_r / (rho_i * rho_j * (r2 + 0.01 * h * h))
+    return m_j * like(mu, 2.0) * mu * r2 * dw_over_r / (rho_i * rho_j * (r2 + like(h, 0.01) * h * h))

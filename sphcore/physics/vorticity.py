@@ -13,6 +13,7 @@ from numba import njit
 import math
 from sphcore.physics.kernels import dw_dr_over_r
 from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
+from sphcore.physics.real import like
 
 
 @njit(cache=True, inline="always")
@@ -30,9 +31,9 @@ def confinement(eps, nx, ny, nz, ox, oy, oz):
 @njit(cache=True, inline="always")
 def vorticity_row(kernel, periodic, neighbours, prm, i, x, v, m, rho, nbr, counts, cells, cell_begin, cell_end, omega):
     """omega_i = sum_j m_j / rho_j grad W_ij x (v_j - v_i).   (vorticity.py)"""
-    ox = 0.0 * prm.H
-    oy = 0.0 * prm.H
-    oz = 0.0 * prm.H
+    ox = like(prm.H, 0.0)
+    oy = like(prm.H, 0.0)
+    oz = like(prm.H, 0.0)
     home = walk_start(neighbours, x, i, cells)
     for span in range(spans(neighbours)):
         k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
@@ -58,9 +59,9 @@ def vorticity_row(kernel, periodic, neighbours, prm, i, x, v, m, rho, nbr, count
 def confinement_row(kernel, periodic, neighbours, prm, i, x, m, rho, omega, nbr, counts, cells, cell_begin, cell_end,
                     a):
     """a_i += eps N_i x omega_i, N = eta/|eta|, eta_i = sum_j m_j/rho_j |omega_j| grad W_ij."""
-    ex = 0.0 * prm.H
-    ey = 0.0 * prm.H
-    ez = 0.0 * prm.H
+    ex = like(prm.H, 0.0)
+    ey = like(prm.H, 0.0)
+    ez = like(prm.H, 0.0)
     home = walk_start(neighbours, x, i, cells)
     for span in range(spans(neighbours)):
         k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)

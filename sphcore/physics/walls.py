@@ -51,24 +51,25 @@ import math
 from numba import njit
 
 from sphcore.physics.kernels import dw_dr, w
+from sphcore.physics.real import like
 
 
 @njit(cache=True, inline="always")
 def _mesh_distance(wd, x, y, z):
     """Trilinear signed distance of a mesh obstacle's grid (sphcore.mesh_sdf layout) and the unit
     gradient of the interpolant as the normal; far outside the grid: no wall."""
-    one = 1.0
+    one = like(x, 1.0)
     inv = wd[19]
     nx, ny, nz = int(wd[20]), int(wd[21]), int(wd[22])
     fx = (x - wd[16]) * inv
     fy = (y - wd[17]) * inv
     fz = (z - wd[18]) * inv
     if fx < 0.0 or fy < 0.0 or fz < 0.0 or fx > nx - 1 or fy > ny - 1 or fz > nz - 1:
-        return 1.0e6 * one, 0.0 * one, one, 0.0 * one
+        return like(one, 1.0e6), like(one, 0.0), one, like(one, 0.0)
     i = min(int(fx), nx - 2)
     j = min(int(fy), ny - 2)
     k = min(int(fz), nz - 2)
-    tx, ty, tz = fx - i, fy - j, fz - k
+    tx, ty, tz = fx - like(fx, i), fy - like(fy, j), fz - like(fz, k)
     b = 24 + (k * ny + j) * nx + i
     c000, c100 = wd[b], wd[b + 1]
     c010, c110 = wd[b + nx], wd[b + nx + 1]
@@ -81,20 +82,20 @@ def _mesh_distance(wd, x, y, z):
     d0 = d00 + ty * (d10 - d00)
     d1 = d01 + ty * (d11 - d01)
     d = d0 + tz * (d1 - d0)
-    gx = ((1 - ty) * (1 - tz) * (c100 - c000) + ty * (1 - tz) * (c110 - c010)
-          + (1 - ty) * tz * (c101 - c001) + ty * tz * (c111 - c011))
-    gy = (1 - tz) * (d10 - d00) + tz * (d11 - d01)
+    gx = ((one - ty) * (one - tz) * (c100 - c000) + ty * (one - tz) * (c110 - c010)
+          + (one - ty) * tz * (c101 - c001) + ty * tz * (c111 - c011))
+    gy = (one - tz) * (d10 - d00) + tz * (d11 - d01)
     gz = d1 - d0
     g = math.sqrt(gx * gx + gy * gy + gz * gz)
     if g > 0.0:
         return d, gx / g, gy / g, gz / g
-    return d, 0.0 * one, one, 0.0 * one
+    return d, like(one, 0.0), one, like(one, 0.0)
 
 
 @njit(cache=True, inline="always")
 def signed_distance(kind, wd, x, y, z):
     """(d, nx, ny, nz) for primitive ``kind`` with data row ``wd`` at point (x, y, z)."""
-    one = 1.0
+    one = like(x, 1.0)
     if kind == 5:  # MESH_OUTSIDE
         return _mesh_distance(wd, x, y, z)
     if kind == 0:  # PLANE
@@ -109,7 +110,7 @@ def signed_distance(kind, wd, x, y, z):
         if r > 0.0:
             ux, uy, uz = rx / r, ry / r, rz / r
         else:
-            ux, uy, uz = 0.0 * one, one, 0.0 * one
+            ux, uy, uz = like(one, 0.0), one, like(one, 0.0)
         if kind == 1:
             return wd[15] - r, -ux, -uy, -uz
         return r - wd[15], ux, uy, uz
@@ -120,9 +121,9 @@ def signed_distance(kind, wd, x, y, z):
     if kind == 2:  # CYLINDER_INSIDE, axis = local y
         rho = math.sqrt(lx * lx + lz * lz)
         if rho > 0.0:
-            nlx, nly, nlz = -lx / rho, 0.0 * one, -lz / rho
+            nlx, nly, nlz = -lx / rho, like(one, 0.0), -lz / rho
         else:
-            nlx, nly, nlz = one, 0.0 * one, 0.0 * one
+            nlx, nly, nlz = one, like(one, 0.0), like(one, 0.0)
         d = wd[15] - rho
     else:  # BOX_OUTSIDE, half extents wd[3:6]
         qx = abs(lx) - wd[3]
@@ -132,16 +133,16 @@ def signed_distance(kind, wd, x, y, z):
         sy = one if ly >= 0.0 else -one
         sz = one if lz >= 0.0 else -one
         if qx > 0.0 or qy > 0.0 or qz > 0.0:
-            ox, oy, oz = max(qx, 0.0), max(qy, 0.0), max(qz, 0.0)
+            ox, oy, oz = max(qx, like(qx, 0.0)), max(qy, like(qy, 0.0)), max(qz, like(qz, 0.0))
             d = math.sqrt(ox * ox + oy * oy + oz * oz)
             nlx, nly, nlz = sx * ox / d, sy * oy / d, sz * oz / d
         else:  # inside the obstacle: the nearest face decides
             if qx >= qy and qx >= qz:
-                d, nlx, nly, nlz = qx, sx, 0.0 * one, 0.0 * one
+                d, nlx, nly, nlz = qx, sx, like(one, 0.0), like(one, 0.0)
             elif qy >= qz:
-                d, nlx, nly, nlz = qy, 0.0 * one, sy, 0.0 * one
+                d, nlx, nly, nlz = qy, like(one, 0.0), sy, like(one, 0.0)
             else:
-                d, nlx, nly, nlz = qz, 0.0 * one, 0.0 * one, sz
+                d, nlx, nly, nlz = qz, like(one, 0.0), like(one, 0.0), sz
     nx = wd[6] * nlx + wd[7] * nly + wd[8] * nlz
     ny = wd[9] * nlx + wd[10] * nly + wd[11] * nlz
     nz = wd[12] * nlx + wd[13] * nly + wd[14] * nlz
@@ -152,12 +153,12 @@ def signed_distance(kind, wd, x, y, z):
 def table_lookup(table, d, end):
     """Linear interpolation of a wall table sampled on d in [0, end]; 0 beyond, table[0] below 0."""
     if d >= end:
-        return 0.0 * table[0]
+        return like(table, 0.0)
     n = table.shape[0] - 1
-    s = max(d, 0.0) / end * n
+    s = max(d, like(d, 0.0)) / end * like(d, n)
     k = min(int(s), n - 1)
-    f = s - k
-    return table[k] * (1.0 - f) + table[k + 1] * f
+    f = s - like(s, k)
+    return table[k] * (like(f, 1.0) - f) + table[k + 1] * f
 
 
 @njit(cache=True)
@@ -188,24 +189,25 @@ def _corner_sums(kernel, prm, want_force, na, nb, nc, da, db, dc, triple, coef_p
     if prm.dim3 and not triple:
         m_lo = -K
         m_hi = K
-    sw = 0.0 * dx
-    fx = 0.0 * dx
-    fy = 0.0 * dx
-    fz = 0.0 * dx
+    sw = like(dx, 0.0)
+    fx = like(dx, 0.0)
+    fy = like(dx, 0.0)
+    fz = like(dx, 0.0)
     for k in range(K + 1):
-        za = da + (k + 0.5) * dx
+        za = da + (like(dx, k) + like(dx, 0.5)) * dx
         for l in range(K + 1):
-            zb = db + (l + 0.5) * dx
+            zb = db + (like(dx, l) + like(dx, 0.5)) * dx
             for m in range(m_lo, m_hi + 1) if not triple else range(K + 1):
                 if triple:
-                    zc = dc + (m + 0.5) * dx
+                    zc = dc + (like(dx, m) + like(dx, 0.5)) * dx
                     ux = -za * na[0] - zb * nb[0] - zc * nc[0]
                     uy = -za * na[1] - zb * nb[1] - zc * nc[1]
                     uz = -za * na[2] - zb * nb[2] - zc * nc[2]
                 else:
-                    ux = -za * na[0] - zb * nb[0] + m * dx * ex
-                    uy = -za * na[1] - zb * nb[1] + m * dx * ey
-                    uz = -za * na[2] - zb * nb[2] + m * dx * ez
+                    zm = like(dx, m) * dx
+                    ux = -za * na[0] - zb * nb[0] + zm * ex
+                    uy = -za * na[1] - zb * nb[1] + zm * ey
+                    uz = -za * na[2] - zb * nb[2] + zm * ez
                 r = math.sqrt(ux * ux + uy * uy + uz * uz)
                 if r >= prm.H:
                     continue
@@ -229,20 +231,20 @@ def wall_terms(kernel, prm, want_force, kinds, data, tables, x, y, z, p_i, rho_i
     """Wall contributions at (x, y, z): (delta rho, ax, ay, az) — density share when ``want_force``
     is false, pressure acceleration when true (module docstring)."""
     H = prm.H
-    drho = 0.0 * H
-    ax = 0.0 * H
-    ay = 0.0 * H
-    az = 0.0 * H
+    drho = like(H, 0.0)
+    ax = like(H, 0.0)
+    ay = like(H, 0.0)
+    az = like(H, 0.0)
     near = 0
     d1 = d2 = d3 = H
-    n1 = n2 = n3 = (0.0 * H, 0.0 * H, 0.0 * H)
+    n1 = n2 = n3 = (like(H, 0.0), like(H, 0.0), like(H, 0.0))
     for q in range(kinds.shape[0]):
         d, nx, ny, nz = signed_distance(kinds[q], data[q], x, y, z)
         if d >= H:
             continue
         if want_force:
             b_n = bx * nx + by * ny + bz * nz
-            push = prm.rho0 / (rho_i * rho_i) * (-2.0 * p_i * table_lookup(tables[1], d, prm.wall_table_end)
+            push = prm.rho0 / (rho_i * rho_i) * (like(p_i, -2.0) * p_i * table_lookup(tables[1], d, prm.wall_table_end)
                                                   + rho_i * b_n * table_lookup(tables[2], d, prm.wall_table_end))
             if push > 0.0:
                 ax += push * nx
@@ -264,7 +266,7 @@ def wall_terms(kernel, prm, want_force, kinds, data, tables, x, y, z, p_i, rho_i
     if near < 2:
         return drho, ax, ay, az
     # inclusion-exclusion over perpendicular pairs (and the triple) of the first three near walls
-    coef = 2.0 * p_i / rho_i
+    coef = like(p_i, 2.0) * p_i / rho_i
     scale_f = prm.rho0 * prm.inv_s / rho_i
     for pair in range(3):
         if pair == 0:
@@ -295,12 +297,12 @@ def wall_terms(kernel, prm, want_force, kinds, data, tables, x, y, z, p_i, rho_i
 def wall_viscosity(prm, kinds, data, tables, x, y, z, rho_i):
     """k such that the no-slip wall drag is a_i += k v_i: 2 mu / rho_i sum over near walls of Gv(d)
     (module docstring); 0 away from walls."""
-    k = 0.0 * prm.H
+    k = like(prm.H, 0.0)
     for q in range(kinds.shape[0]):
         d, _, _, _ = signed_distance(kinds[q], data[q], x, y, z)
         if d < prm.H:
             k += table_lookup(tables[4], d, prm.wall_table_end)
-    return 2.0 * prm.mu / rho_i * k
+    return like(k, 2.0) * prm.mu / rho_i * k
 
 
 @njit(cache=True, inline="always")
@@ -308,8 +310,8 @@ def fill_fraction(rho_fluid, rho_wall, rho0):
     """theta = min(1, rho_fluid / (rho0 - rho_wall)): how full the fluid side of a wall particle is."""
     expected = rho0 - rho_wall
     if rho_wall <= 0.0 or expected <= 0.0:
-        return 1.0 + 0.0 * rho0
-    return min(rho_fluid / expected, 1.0)
+        return like(rho0, 1.0)
+    return min(rho_fluid / expected, like(rho0, 1.0))
 
 
 @njit(cache=True, inline="always")
@@ -317,5 +319,5 @@ def wall_density_gradient(kernel, prm, wall_kind, wall_data, wall_tables, x, i, 
     """g_i^wall = grad_i of the wall's density share theta rho0 Phi(d_i): the walls' pressure push at
     p_i = rho_i^2 / 2 without body force is -sum_virtual m grad W = -g_i^wall / theta.   (walls.py)"""
     _, fx, fy, fz = wall_terms(kernel, prm, True, wall_kind, wall_data, wall_tables, x[i, 0], x[i, 1], x[i, 2],
-                               0.5 * rho_i * rho_i, rho_i, 0.0 * rho_i, 0.0 * rho_i, 0.0 * rho_i)
+                               like(rho_i, 0.5) * rho_i * rho_i, rho_i, like(rho_i, 0.0), like(rho_i, 0.0), like(rho_i, 0.0))
     return -theta * fx, -theta * fy, -theta * fz

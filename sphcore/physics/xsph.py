@@ -13,20 +13,21 @@ import math
 from numba import njit
 from sphcore.physics.kernels import w
 from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
+from sphcore.physics.real import like
 
 
 @njit(cache=True, inline="always")
 def xsph_pair(m_j, rho_i, rho_j, w_ij):
     """Scalar f so that the correction contribution is f * (v_j - v_i) (times eps)."""
-    return m_j / (0.5 * (rho_i + rho_j)) * w_ij
+    return m_j / (like(rho_i, 0.5) * (rho_i + rho_j)) * w_ij
 
 
 @njit(cache=True, inline="always")
 def xsph_row(kernel, periodic, neighbours, prm, i, x, v, m, rho, nbr, counts, cells, cell_begin, cell_end, dv):
     """dv_i = eps sum_j m_j / rho_ij (v_j - v_i) W_ij (the drift uses v + dv).   (xsph.py)"""
-    sx = 0.0 * prm.H
-    sy = 0.0 * prm.H
-    sz = 0.0 * prm.H
+    sx = like(prm.H, 0.0)
+    sy = like(prm.H, 0.0)
+    sz = like(prm.H, 0.0)
     home = walk_start(neighbours, x, i, cells)
     for span in range(spans(neighbours)):
         k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
