@@ -564,6 +564,19 @@ def stage_signature(stage, dtype: str) -> tuple:
     return tuple(t[a] for a in ("n", *stage.arguments, *outs))
 
 
+_F64 = None
+
+
+def float64_instructions(ptx: str) -> int:
+    """The number of float64 instructions in a PTX text (arithmetic, moves, conversions to or from
+    float64, comparisons: every instruction whose type suffix is .f64), not counting declarations."""
+    import re
+    global _F64
+    if _F64 is None:
+        _F64 = re.compile(r"^\s*(?:@!?%p\d+\s+)?[a-z]+(?:\.[a-z0-9]+)*\.f64\b", re.M)
+    return len(_F64.findall(ptx))
+
+
 def compile_all(dtype="f32", cc=(9, 0), stages=None, combinations=covering_choices):
     """Compile the kernels of ``stages`` (default: all) for every choice combination that
     ``combinations(stage)`` lists (default: stages.covering_choices, every value of every choice),

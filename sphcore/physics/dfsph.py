@@ -124,7 +124,8 @@ def reference_density(rho0: float, offset_sum: int, n: int) -> float:
 
 @njit(cache=True, inline="always")
 def quantized_error(e):
-    """|s_i| / rho0 as an integer count of 2^-32 (capped at ERROR_CAP)."""
+    """|s_i| / rho0 as an integer count of 2^-32 (capped at ERROR_CAP), formed in float64 whatever the
+    run's precision (once per row): the quantum must be the same everywhere."""
     return int(min(e, ERROR_CAP) * ERROR_QUANTUM)
 
 

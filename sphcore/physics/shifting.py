@@ -61,7 +61,7 @@ def shifting_row(kernel, periodic, neighbours, add, prm, i, x, v, m, rho, nbr, c
             gx += f * dx
             gy += f * dy
             gz += f * dz
-    if c < SURFACE_CONCENTRATION:  # free-surface layer: grad C is the surface's, not disorder's
+    if c < like(c, SURFACE_CONCENTRATION):  # free-surface layer: grad C is the surface's, not disorder's
         gx = like(gx, 0.0)
         gy = like(gy, 0.0)
         gz = like(gz, 0.0)

@@ -64,7 +64,7 @@ def _mesh_distance(wd, x, y, z):
     fx = (x - wd[16]) * inv
     fy = (y - wd[17]) * inv
     fz = (z - wd[18]) * inv
-    if fx < 0.0 or fy < 0.0 or fz < 0.0 or fx > nx - 1 or fy > ny - 1 or fz > nz - 1:
+    if fx < 0.0 or fy < 0.0 or fz < 0.0 or fx > like(fx, nx - 1) or fy > like(fy, ny - 1) or fz > like(fz, nz - 1):
         return like(one, 1.0e6), like(one, 0.0), one, like(one, 0.0)
     i = min(int(fx), nx - 2)
     j = min(int(fy), ny - 2)
@@ -223,7 +223,8 @@ def _corner_sums(kernel, prm, want_force, na, nb, nc, da, db, dc, triple, coef_p
 
 @njit(cache=True)
 def _perpendicular(n1, n2):
-    return abs(n1[0] * n2[0] + n1[1] * n2[1] + n1[2] * n2[2]) < 1.0e-6
+    c = n1[0] * n2[0] + n1[1] * n2[1] + n1[2] * n2[2]
+    return abs(c) < like(c, 1.0e-6)
 
 
 @njit(cache=True)
