@@ -55,20 +55,61 @@ def _fixed(scene_path: Path, dx: float) -> list[str]:
     return [f"particles.spacing={dx!r}", "time.mode='fixed'", f"time.dt={fixed_dt(scene_path, dx)!r}"]
 
 
+def _memory_kb(field: str) -> int | None:
+    """VmRSS (resident now) or VmHWM (peak since the last reset) of this process in kB (Linux)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith(field + ":"):
+                return int(line.split()[1])
+    except OSError:
+        pass
+    return None
+
+
+def _reset_peak_memory():
+    """Reset VmHWM to the current RSS (Linux: writing 5 to /proc/self/clear_refs)."""
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+    except OSError:
+        pass
+
+
+def _device_used() -> int | None:
+    from numba import cuda
+    try:
+        free, total = cuda.current_context().get_memory_info()
+        return int(total - free)
+    except Exception:  # noqa: BLE001 - no device (simulator) or a driver without the query
+        return None
+
+
 def bench_case(scene_path: Path, dx: float, precision: str, threads: int, steps: int, backend: str = "cpu",
                neighbours: str = "lists") -> dict:
+    """One timed case. Memory per particle: the host's peak RSS during the timed steps over its RSS
+    before set-up (so it holds the state, scratch and grid; compiled code too on a cold cache), and on
+    a GPU the device memory in use after the steps over that before set-up."""
     numba.set_num_threads(threads)
     scene = load_scene(scene_path, _fixed(scene_path, dx) + [f"run.neighbours={neighbours!r}"])
+    rss_before = _memory_kb("VmRSS")
+    device_before = _device_used() if backend == "cuda" else None
     sim = Simulation(scene, precision, backend)
     t0 = time.perf_counter()
     sim.step()  # compile or load the cache
     first = time.perf_counter() - t0
     sim.timers.reset()
+    _reset_peak_memory()
     t0 = time.perf_counter()
     for _ in range(steps):
         sim.step()
     wall = time.perf_counter() - t0
     stages = {k: v["median_s"] for k, v in sim.timers.summary().items()}
+    peak = _memory_kb("VmHWM")
+    n = sim.n_particles
+    host_bpp = (peak - rss_before) * 1024 / n if peak is not None and rss_before is not None else None
+    device_bpp = None
+    if device_before is not None:
+        used = _device_used()
+        device_bpp = (used - device_before) / n if used is not None else None
     return {
         "code": "sphfluid", "method": "wcsph", "backend": backend, "device": sim.device_name,
         "precision": precision, "threads": threads if backend == "cpu" else 0,
@@ -76,7 +117,7 @@ def bench_case(scene_path: Path, dx: float, precision: str, threads: int, steps:
         "particle_steps_per_s": sim.n_particles * steps / wall, "steps_per_s": steps / wall, "first_step_s": first,
         "neighbours": sim.neighbours_sum / max(sim.state.n_owned, 1), "neighbour_search": neighbours,
         "stage_median_s": stages,
-        "leaks": sim.leaks,
+        "leaks": sim.leaks, "host_bytes_per_particle": host_bpp, "device_bytes_per_particle": device_bpp,
     }
 
 
@@ -204,8 +245,13 @@ def _row(r: dict) -> str:
     where = "cuda     " if r.get("backend") == "cuda" else f"threads={r['threads']}"
     where += " walk " if r.get("neighbour_search") == "walk" else ""
     rate = f" {r['steps_per_s']:7.1f} steps/s" if r.get("backend") == "cuda" else ""
+    memory = ""
+    for key, label in (("host_bytes_per_particle", "host"), ("device_bytes_per_particle", "device")):
+        if r.get(key) is not None:
+            memory += f" {label}={r[key]:.0f}B/particle"
     return (f"{r['code']:>13} {r['method']:>6} {r.get('precision', 'f64'):>4} {where} "
-            f"N={r['particles']:>8} nbrs={nb_text} {r['particle_steps_per_s']:10.3e} particle-steps/s{rate}{split}")
+            f"N={r['particles']:>8} nbrs={nb_text} {r['particle_steps_per_s']:10.3e} particle-steps/s{rate}"
+            f"{memory}{split}")
 
 
 def _print_walk_ratios(results: list[dict]):
