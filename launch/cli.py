@@ -357,6 +357,7 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("file", type=Path, help="a recording, e.g. runs/dam_break/run.rrd")
     replay.add_argument("--serve-web", action="store_true", help="serve the web viewer on 127.0.0.1 instead")
     _add_port_options(replay)
+    replay.add_argument("--port", type=_port, dest="web_port", metavar="PORT", help="the same as --web-port")
 
     scene = sub.add_parser(
         "scene", help="check a scene as sph run does and summarise it (--full: the resolved TOML)",
@@ -739,7 +740,8 @@ def viewer_options(args, scene, out: Path) -> dict | None:
         return None
     return {"record": args.record or out / "run.rrd", "spawn": args.spawn, "serve_web": args.serve_web,
             "grpc_port": args.grpc_port, "web_port": args.web_port,
-            "connect": args.rerun_url}
+            "connect": args.rerun_url,
+            "expected_frames": args.steps // scene.render.every if args.steps else None}  # the size estimate
 
 
 def _cmd_viewer(args) -> int:
@@ -774,7 +776,8 @@ def _cmd_viewer(args) -> int:
         print("viewer ready", flush=True)
 
     frames = run_viewer(scene, args.run_id, args.listen, args.zenoh, rec, domain_box(scene), args.world, 0,
-                        ready=ready, idle_timeout=args.idle_timeout, stats_path=args.stats, trust=trust)
+                        ready=ready, idle_timeout=args.idle_timeout, stats_path=args.stats, trust=trust,
+                        record=args.record)
     print(f"sph viewer: {frames} frames", file=sys.stderr)
     return 0
 
