@@ -77,7 +77,10 @@ def test_two_peer_composite_equals_the_one_peer_image(one_peer, tmp_path):
     steps = entity_steps(tmp_path / "run.rrd")
     assert steps["/peers/1/rgb"] == [20, 40, 60] and steps["/stats/particles/peer1"] == [20, 40, 60]
     assert "/composite/status" not in steps
-    assert (tmp_path / "viewer.json").exists()
+    import json
+    shown = json.loads((tmp_path / "summary.json").read_text())["viewer"]  # from the viewer process
+    assert shown["frames"] == 3 and shown["dropped_frames"] == 0 and shown["composite_latency_ms"]["max"] > 0
+    assert shown["record_mb"] == pytest.approx((tmp_path / "run.rrd").stat().st_size / 1e6, rel=1e-3)
 
 
 def test_an_incomplete_frame_is_composited_from_what_arrived_and_marked(tmp_path):
