@@ -412,6 +412,9 @@ def main(argv: list[str] | None = None) -> int:
                         format="%(asctime)s %(name)s %(levelname)s %(message)s", datefmt="%H:%M:%S")
     # numba-cuda logs every device allocation and free at INFO: keep it to warnings unless --verbose
     logging.getLogger("numba").setLevel(logging.INFO if args.verbose else logging.WARNING)
+    if args.command in ("run", "peer", "viewer", "validate", "study", "bench"):
+        from launch.compiling import report_compiling
+        report_compiling()  # a scene's first run compiles its kernels for minutes: say so, with the time
     from nodes.endpoint import TransportError
     from sphcore.backends import BackendUnavailable
     from sphcore.scene import SceneError
