@@ -43,11 +43,21 @@ class CompileProgress:
             self._depth = max(0, self._depth - 1)
             self._last_end = time.perf_counter()
 
+    def at_exit(self):
+        """A process that ends right after compiling (before the quiet time) still says it finished."""
+        with self._lock:
+            if self._started is None or self._last_end is None or self._depth:
+                return
+            took, self._started = self._last_end - self._started, None
+        self.say(f"kernels compiled in {took:.0f} s (cached for the next runs)")
+
     def _tick(self):
         next_report = self._started + self.every
         while True:
             time.sleep(min(0.25, self.every / 4))
             with self._lock:
+                if self._started is None:  # reported at exit
+                    return
                 now = time.perf_counter()
                 if self._depth == 0 and self._last_end is not None and now - self._last_end > self.quiet_after:
                     took, self._started = self._last_end - self._started, None
@@ -74,4 +84,6 @@ def report_compiling(every: float = 15.0, say=None) -> CompileProgress:
             progress.on_end(ev)
 
     event.register("numba:compile", _Listener())
+    import atexit
+    atexit.register(progress.at_exit)
     return progress

@@ -56,9 +56,10 @@ import numpy as np
 
 from nodes import wire
 from nodes.rerun_sinks import sinks_for
+from nodes.walls_view import merge_layer, obstacle_layer, wall_meshes
 from nodes.zenoh_transport import zenoh_config
 from sphcore.output import write_summary
-from sphcore.render import LUT, RANK_COLOURS, Framelet, SceneRenderer
+from sphcore.render import LUT, RANK_COLOURS, Framelet, SceneRenderer, composite, draw_box
 
 log = logging.getLogger("sph.viewer")
 
@@ -187,49 +188,6 @@ def blueprint(scene, world: int, camera=None):
         collapse_panels=True)
 
 
-def wall_meshes(scene, box):
-    """{entity: rr.Mesh3D} of the container and every obstacle (meshes as placed in the scene), for
-    the 3D view; PyVista makes the primitives."""
-    import pyvista as pv
-    import rerun as rr
-
-    from sphcore.boundaries import container_frame, rotation_matrix
-    c, R = container_frame(scene)
-    dom, s = scene.domain, scene.domain.scale
-    shapes = {}
-    if dom.container == "sphere":
-        shapes["container"] = (pv.Sphere(radius=dom.radius * s), c, np.eye(3))
-    elif dom.container == "cylinder":
-        shapes["container"] = (pv.Cylinder(radius=0.5 * dom.size[0] * s, height=dom.size[1] * s,
-                                           direction=(0, 1, 0), capping=False), c, R)
-    elif dom.container == "box" and scene.dim == 3 and np.any(np.abs(np.asarray(dom.rotation)) > 0):
-        shapes["container"] = (pv.Box(bounds=np.ravel(np.stack([-0.5 * np.asarray(dom.size) * s,
-                                                                 0.5 * np.asarray(dom.size) * s], 1))), c, R)
-    for i, ob in enumerate(scene.obstacles):
-        centre, Rob = np.array(ob.center, dtype=float), rotation_matrix(ob.rotation)
-        if ob.frame == "container":
-            centre, Rob = c + R @ (centre * s), R @ Rob
-        if ob.shape == "sphere":
-            shapes[f"obstacles/{i}"] = (pv.Sphere(radius=ob.radius), centre, np.eye(3))
-        elif ob.shape == "box":
-            half = 0.5 * np.asarray(ob.size, dtype=float)
-            shapes[f"obstacles/{i}"] = (pv.Box(bounds=np.ravel(np.stack([-half, half], 1))), centre, Rob)
-        else:
-            from sphcore.mesh_sdf import placed_mesh
-            from sphcore.scene import mesh_path
-            shapes[f"obstacles/{i}"] = (placed_mesh(mesh_path(scene, ob), centre, ob.scale * s, Rob), np.zeros(3),
-                                        np.eye(3))
-    out = {}
-    for name, (mesh, centre, rot) in shapes.items():
-        tri = mesh.triangulate()
-        faces = np.asarray(tri.faces).reshape(-1, 4)[:, 1:]
-        pts = np.asarray(tri.points, dtype=np.float64) @ np.asarray(rot).T + centre
-        colour = [120, 120, 130, 110] if name == "container" else [170, 150, 120, 255]
-        out[name] = rr.Mesh3D(vertex_positions=pts.astype(np.float32), triangle_indices=faces.astype(np.uint32),
-                              albedo_factor=colour)
-    return out
-
-
 class Viewer:
     """Composites frames of ``world`` peers and logs them to ``rec`` (a Rerun RecordingStream).
     ``announce``: where the recording size estimate goes (a line after the first frame)."""
@@ -252,13 +210,14 @@ class Viewer:
         self.changes = []        # (step, control text) of the settings changed
         self._last_emit = None
         self._carried = []       # control lines of dropped frames, logged with the next frame
+        self._layers = {}        # camera name -> the obstacles' (rgb, depth) seen from it (walls_view.py)
         self._lock = threading.Lock()
         self._queue = queue.Queue(maxsize=max(1, queue_frames))
         lo, hi = self.renderer.box
         rec.send_blueprint(blueprint(scene, world, self.renderer.camera))
         rec.log("domain", rr.Boxes3D(mins=[lo], sizes=[hi - lo], colors=[[200, 200, 200]]), static=True)
         try:
-            for name, mesh in wall_meshes(scene, box).items():
+            for name, mesh in wall_meshes(scene).items():
                 rec.log(name, mesh, static=True)
         except (ImportError, OSError, ValueError) as e:  # a mesh that cannot be read: the run says so itself
             log.warning("viewer: walls not drawn in 3D: %s", e)
@@ -408,6 +367,22 @@ class Viewer:
             rec.log("events", rr.TextLog(f"step {step}: colour by {quantity}", level="INFO"))
             self._log_legend()
 
+    def image(self, frames):
+        """The composite of ``frames`` (sort-last), the obstacles merged by depth, the domain outline
+        drawn over what is in front of it: (rgb, depth)."""
+        r = self.renderer
+        cam = r.camera
+        rgb, depth, _ = composite(frames, cam.width, cam.height)
+        if r.camera_name not in self._layers:
+            try:
+                self._layers[r.camera_name] = obstacle_layer(self.scene, cam, r.box)
+            except (OSError, ValueError) as e:  # a mesh that cannot be read: the run says so itself
+                log.warning("viewer: obstacles not drawn: %s", e)
+                self._layers[r.camera_name] = None
+        merge_layer(rgb, depth, self._layers[r.camera_name])
+        draw_box(cam, *r.box, rgb, depth, self.scene.dim)
+        return rgb, depth
+
     def _log_frame(self, step: int, parts: dict):
         rr, rec = self.rr, self.rec
         ranks = sorted(parts)
@@ -426,7 +401,7 @@ class Viewer:
                 self.changes.append((step, text))
                 self._log_info()
         frames = [parts[r][0] for r in ranks]
-        rgb, depth, _ = self.renderer.image(frames)
+        rgb, depth = self.image(frames)
         jpeg = encode_jpeg(rgb, RGB_QUALITY)
         png, meter = encode_depth(depth)
         size = len(jpeg) + len(png)

@@ -247,3 +247,35 @@ def test_the_viewer_follows_a_camera_switch_and_a_changed_setting(tmp_path):
     assert "alpha = 0.5" in info and "step 2: set sph.alpha = 0.5" in info
     assert text_logs(tmp_path / "r.rrd", "/legend")[-1].startswith("# Colour: density")
     assert "step 2: camera side" in text_logs(tmp_path / "r.rrd", "/events")
+
+
+def test_obstacles_are_drawn_into_the_composite_by_depth():
+    from nodes.frames import domain_box
+    # Given the obstacle scene (a sphere in a tilted tank) and a framelet filling the screen
+    sc = scene("obstacle", "particles.spacing=0.05")
+    box = domain_box(sc)
+    v = Viewer(sc, box, SlowRerun(0.0), world=1, particles=1)
+    cam = v.renderer.camera
+    centre = np.array([0.15, -0.12, 0.0])  # the sphere's centre in the tank frame ...
+    from sphcore.boundaries import container_frame
+    c, R = container_frame(sc)
+    centre = c + R @ centre                # ... in the world
+    eye, right, up, forward = cam.basis()
+    rel = centre - eye
+    px = int(0.5 * cam.width + (rel @ right) * cam.focal / (rel @ forward))
+    py = int(0.5 * cam.height - (rel @ up) * cam.focal / (rel @ forward))
+    distance = float(rel @ forward)
+
+    def fluid_at(depth):
+        return Framelet(0, 0, 0, np.full((cam.height, cam.width, 3), [250, 0, 0], np.uint8),
+                        np.full((cam.height, cam.width), depth, np.float32),
+                        np.arange(cam.width * cam.height).reshape(cam.height, cam.width))
+    # When the fluid is behind the sphere, and when it is in front
+    behind_rgb, behind_depth = v.image([fluid_at(distance + 1.0)])
+    front_rgb, _ = v.image([fluid_at(distance - 0.2)])
+    v.close()
+    # Then the sphere hides the fluid behind it (at its front surface's depth), and fluid in front hides it
+    assert behind_rgb[py, px, 0] < 250 and abs(int(behind_rgb[py, px, 1]) - int(behind_rgb[py, px, 2])) < 60
+    assert abs(float(behind_depth[py, px]) - (distance - 0.08)) < 0.01
+    assert front_rgb[py, px].tolist() == [250, 0, 0]
+    assert (behind_rgb[..., 0] < 250).mean() > 0.003  # the sphere covers some pixels, not one
