@@ -280,7 +280,8 @@ def drive(peer: PeerRun, plan: RunPlan, frames: FrameSink | None = None):
         if frames is not None:
             frames.show(sim)
         if plan.out is not None and time.perf_counter() - last_summary[0] >= plan.summary_every_s:
-            write_summary(plan.out / "summary.json", progress_summary(sim, scene, world, peer.t_start, "running"))
+            write_summary(plan.out / "summary.json", dict(progress_summary(sim, scene, world, peer.t_start, "running"),
+                                                          controls=[list(c) for c in controls.applied]))
             last_summary[0] = time.perf_counter()
 
     try:

@@ -87,9 +87,10 @@ class Controls:
     ``pause`` holds every peer after that step until rank 0 gets ``resume`` or ``step N`` (which
     resumes and holds again N steps later: rank 0 announces that pause itself). While the run is
     held, rank 0 goes on answering: every other command (set, reset, checkpoint, camera, color_by)
-    is applied at once, on every peer, at the held step (rank 0 sends it to the others in a
-    "hold<i>" message; the last one says resume). Every command is acknowledged, so whoever paused
-    a run is told so; a pause while paused or a resume while running is rejected with the reason.
+    is applied at once, on every peer, at the held step (rank 0 sends what it accepted since its
+    last poll to the others in one "hold<i>" message; the last one says resume). Every command is
+    acknowledged, so whoever paused a run is told so; a pause while paused or a resume while running
+    is rejected with the reason.
     What was applied is ``applied`` [(step, description)] (summary.json) and logged."""
 
     def __init__(self, sim, halo, endpoint, maker, rank: int = 0, world: int = 1, checkpoint=None, keep_block=None,
@@ -225,29 +226,31 @@ class Controls:
             self._paused_at = step
             while self._paused_at is not None:
                 self.endpoint.check()
-                entries = self.endpoint.take_commands()
-                while entries:
+                batch, scene, entries = [], self.sim.scene, self.endpoint.take_commands()
+                while entries:  # what came in since the last poll, validated in order, goes out as one message
                     entry = entries.pop(0)
-                    checked = self._validate(entry, self.sim.scene, step)
+                    checked = self._validate(entry, scene, step)
                     if checked is None:
                         continue
-                    cmd = checked[0]
+                    cmd, scene = checked
                     if cmd["op"] in ("resume", "step"):
                         self._paused_at = None
                         self._pause_after = step + cmd["count"] if cmd["op"] == "step" else None
                         self._accept(entry, cmd, self._pause_after if cmd["op"] == "step" else step)
                         self._leftover = entries  # validated as in a running run, at the next step
                         break
-                    self._release(step, index, [cmd], resume=False)
-                    index += 1
+                    batch.append(cmd)
                     self._accept(entry, cmd, step)
-                    yield from self._apply(cmd)
                 if self._paused_at is not None and self.stop is not None and self.stop() is not None:
                     log.warning("peer 0: %s while paused after step %d: going on, to stop", self.stop(), step)
                     self._paused_at = None
+                if batch or self._paused_at is None:
+                    self._release(step, index, batch, resume=self._paused_at is None)
+                    index += 1
+                for cmd in batch:
+                    yield from self._apply(cmd)
                 if self._paused_at is not None:
                     yield from self.endpoint.idle(0.05)
-            self._release(step, index, [], resume=True)
         else:
             while True:
                 try:

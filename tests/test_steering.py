@@ -163,10 +163,13 @@ def test_a_key_set_during_the_run_equals_resuming_with_it_set(key, run, tmp_path
 
 
 @pytest.mark.fast
+@pytest.mark.parametrize("base", [(), ("sph.density=continuity",), ("sph.solver=dfsph",),
+                                  ("time.integrator=leapfrog",)], ids=["wcsph", "continuity", "dfsph", "leapfrog"])
 @pytest.mark.parametrize("run", RUNS, ids=list(RUNS))
-def test_reset_equals_a_new_run_of_the_same_length(run, tmp_path):
-    # Given a run that is reset after step k, with gravity changed before
-    sc = scene("tiny")
+def test_reset_equals_a_new_run_of_the_same_length(run, base, tmp_path):
+    # Given a run that is reset after step k, with the external force changed before (the carried
+    # density and DFSPH's kappa start cold again)
+    sc = scene("tiny", *base)
     summary, final, acks = RUNS[run](sc, tmp_path / "reset", script=[(3, "set forces.external=[1.0, 0.0, 0.0]", False),
                                                                        (6, "reset", False)])
     assert [a[1] for a in acks] == ["accepted", "accepted"], acks
@@ -245,3 +248,32 @@ def test_refused_commands_name_the_reason_and_change_nothing(run, tmp_path):
     assert summary["controls"] == []
     _, plain, _ = run_one(sc, tmp_path / "plain")
     assert_same(final, plain)
+
+
+@pytest.mark.fast
+def test_what_a_held_peer_is_sent_is_checked_before_it_is_applied():
+    from types import SimpleNamespace
+
+    from nodes.peer import Controls
+    from sphcore.halo import Reject, encode_commands
+    sim = Simulation(scene("tiny"), "f64")
+    peer1 = Controls(sim, SimpleNamespace(), InProcessNetwork().endpoint(1), None, rank=1, world=2)
+
+    def held(commands, resume=0, **extra):
+        raw = commands if isinstance(commands, np.ndarray) else encode_commands(commands)
+        return dict({"control": raw, "resume": np.array([resume], dtype=np.uint8)}, **extra)
+
+    good = held([{"op": "set", "key": "sph.alpha", "value": 0.1}, {"op": "checkpoint"}])
+    peer1._hold_check(good)
+    assert good["commands"][1] == {"op": "checkpoint"} and good["resume"] is False
+    for bad in (held([{"op": "pause"}]),                                         # the run is held already
+                held([{"op": "set", "key": "sph.kernel", "value": "muller"}]),  # not live
+                held([{"op": "set", "key": "terms.drag", "value": 1.0}]),       # switches a stage on
+                held([{"op": "set", "key": "sph.alpha", "value": 1e9}]),        # out of range
+                held([{"op": "reset"}], resume=2), held([], extra=np.zeros(1)),
+                {"control": encode_commands([])},
+                held(np.frombuffer(b"[[[[", np.uint8)), held(np.frombuffer(b"\xff\xfe", np.uint8)),
+                held(np.zeros(3, np.float64)), held(np.zeros(70_000, np.uint8))):
+        with pytest.raises(Reject):
+            peer1._hold_check(bad)
+    assert sim.scene.sph.alpha != 0.1  # checking applies nothing
