@@ -31,7 +31,7 @@ from typing import Callable, Protocol
 import numba
 import numpy as np
 
-from nodes.endpoint import Endpoint
+from nodes.endpoint import Endpoint, TransportError
 from nodes.frames import FrameMaker, domain_box
 from nodes.peer import (Controls, PeerRecorder, _empty_check, _entry_check, _final_check, decomposition_for,
                         message_limit, peer_summary, take_block)
@@ -438,7 +438,8 @@ def listen_for_control(out: Path, secure: bool = True):
     of 1 on a Zenoh endpoint listening on a free loopback port, with the run's credentials in
     OUT/tls (as a multi-peer run makes them: ``sph control OUT CMD`` uses the controller's) and
     OUT/run.json saying where; ``secure`` False: plain TCP (``--insecure``). Returns the endpoint
-    (close it after the run). OutputError if OUT cannot be written."""
+    (close it after the run). OutputError if OUT cannot be written, TransportError if Zenoh cannot
+    listen there."""
     import shutil
     import socket
     import uuid
@@ -459,7 +460,10 @@ def listen_for_control(out: Path, secure: bool = True):
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     where = f"{'tls' if secure else 'tcp'}/127.0.0.1:{port}"
-    endpoint = ZenohEndpoint(run_id, 0, 1, [where], [], trust=trust)
+    try:
+        endpoint = ZenohEndpoint(run_id, 0, 1, [where], [], trust=trust)
+    except Exception as e:  # zenoh raises its own ZError for an endpoint it cannot open
+        raise TransportError(f"cannot listen for sph control at {where}: {e}") from None
     info = {"run_id": run_id, "world": 1, "endpoints": [where],
             "tls": str(folder.resolve()) if folder is not None else None, "launcher_pid": os.getpid()}
     tmp = out / ".run.json.tmp"
