@@ -25,7 +25,7 @@ Rerun entities (timelines ``step`` and ``sim_time``):
 
     composite/rgb, composite/depth          the composited image (JPEG) and its depth (16-bit PNG, meter)
     composite/peers                         each peer's framelet rectangle, labelled by rank
-    composite/legend                        the colour bar under the image, labelled with the range
+    composite/legend, composite/legend_label    the colour bar under the image, labelled with the range
     composite/status                        a text log line for every incomplete frame
     peers/<rank>/rgb                        each peer's framelet (JPEG)
     fluid/points                            the 3D point cloud (render.points_every; 0 = a point budget)
@@ -336,8 +336,8 @@ class Viewer:
             f"{r.quantity}: {lo:.3g} ... {hi:.3g} {UNITS[r.quantity]}"
         y = cam.height + 6
         self.rec.log("composite/legend", rr.Transform3D(translation=[8, y, 0]), static=True)
-        self.rec.log("composite/legend", rr.Image(bar), static=True)
-        self.rec.log("composite/legend/label", rr.Boxes2D(mins=[[0, 0]], sizes=[[width, 12]], labels=[label],
+        self.rec.log("composite/legend", rr.Image(bar, opacity=1.0), static=True)
+        self.rec.log("composite/legend_label", rr.Boxes2D(mins=[[8, y]], sizes=[[width, 12]], labels=[label],
                                                           colors=[[200, 200, 200]]), static=True)
 
     def _log_camera(self):
@@ -405,7 +405,9 @@ class Viewer:
         jpeg = encode_jpeg(rgb, RGB_QUALITY)
         png, meter = encode_depth(depth)
         size = len(jpeg) + len(png)
-        rec.log("composite/rgb", rr.EncodedImage(contents=jpeg, media_type="image/jpeg"))
+        # opaque: Rerun draws an image that shares its view with other images (the depth, the legend)
+        # half transparent unless told otherwise
+        rec.log("composite/rgb", rr.EncodedImage(contents=jpeg, media_type="image/jpeg", opacity=1.0))
         rec.log("composite/depth", rr.EncodedDepthImage(png, media_type="image/png", meter=meter))
         boxes = [f for f in frames if f.w and f.h]
         if boxes:
