@@ -250,7 +250,8 @@ def drive(peer: PeerRun, plan: RunPlan, frames: FrameSink | None = None):
     saved = Checkpoints(peer, root, every)
     controls = Controls(sim, halo, endpoint, frames.maker if frames is not None else None, rank, world,
                         checkpoint=saved.save if root is not None else None,
-                        keep_block=None if single else (lambda: take_block(sim, halo.dec, rank)), stop=plan.stop)
+                        keep_block=None if single else (lambda: take_block(sim, halo.dec, rank)), stop=plan.stop,
+                        on_set=lambda key, value: live_change(key, value))
     if plan.out is not None:  # before the first step: a run that cannot keep its result does not start
         prepare_output(plan.out)
         write_summary(plan.out / "summary.json", progress_summary(sim, scene, world, peer.t_start, "running"))
@@ -259,6 +260,21 @@ def drive(peer: PeerRun, plan: RunPlan, frames: FrameSink | None = None):
     if scene.output.vtk_every:
         from sphcore.vtk import VtkWriter  # VTK is loaded only by runs that write it
         vtk = VtkWriter(root.parent, scene, rank, world)
+
+    def live_change(key, value):
+        """A key changed during the run (control ``set``) that the driver itself reads: how often it
+        writes checkpoints and VTK files, and how often and by what the peers balance."""
+        nonlocal every, vtk
+        if key == "output.checkpoint_every":
+            every = saved.record["every"] = value
+        elif key == "output.vtk_every" and root is not None:
+            if vtk is None and value:
+                from sphcore.vtk import VtkWriter
+                vtk = VtkWriter(root.parent, sim.scene, rank, world)
+            if vtk is not None:
+                vtk.every = value
+        elif key in ("decomposition.balance_every", "decomposition.balance_by") and not single:
+            setattr(halo, key.split(".")[1], value)
 
     def block_box():
         if single:
@@ -354,7 +370,7 @@ class Checkpoints:
         if not failed:
             try:
                 checkpoint.commit(self.root, step, checkpoint.sim_info(sim), resolved_scene(scene, sim), parts,
-                                  scene.output.checkpoint_keep)
+                                  sim.scene.output.checkpoint_keep)  # as the run has it now
             except checkpoint.CheckpointWriteError as e:
                 failed = [f"{who}{e}"]
         if failed:

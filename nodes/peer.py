@@ -94,14 +94,16 @@ class Controls:
     What was applied is ``applied`` [(step, description)] (summary.json) and logged."""
 
     def __init__(self, sim, halo, endpoint, maker, rank: int = 0, world: int = 1, checkpoint=None, keep_block=None,
-                 stop=None):
+                 stop=None, on_set=None):
         """``checkpoint``: a generator function writing this peer's checkpoint of the current step
         (None: the run writes none, and the command is rejected); ``keep_block``: after a reset,
         keep only this peer's particles (None: a single process keeps them all); ``stop()``: the
-        signal asking the run to end, or None (a held single process then goes on, to stop)."""
+        signal asking the run to end, or None (a held single process then goes on, to stop);
+        ``on_set(key, value)``: after a ``set``, for the keys the run driver reads itself (how often
+        it checkpoints, writes VTK files, balances)."""
         self.sim, self.halo, self.endpoint, self.maker = sim, halo, endpoint, maker
         self.rank, self.world = rank, world
-        self.checkpoint, self.keep_block, self.stop = checkpoint, keep_block, stop
+        self.checkpoint, self.keep_block, self.stop, self.on_set = checkpoint, keep_block, stop, on_set
         self.applied = []        # (step, description), for the summary
         self.checkpointed = None  # the step of the last checkpoint a command wrote (the run's own is then skipped)
         self._leftover = []      # rank 0: commands that arrived with a resume, validated as in a running run
@@ -193,10 +195,14 @@ class Controls:
         op = cmd["op"]
         if op == "set":
             value = cmd["value"]
+            value = tuple(value) if isinstance(value, list) else value
             try:
-                self.sim.set_parameter(cmd["key"], tuple(value) if isinstance(value, list) else value)
+                self.sim.set_parameter(cmd["key"], value)
             except ValueError as e:  # validated before: only a combination could fail, alike on every peer
                 log.error("peer %d: step %d: %s not applied: %s", self.rank, step, text, e)
+            else:
+                if self.on_set is not None:
+                    self.on_set(cmd["key"], value)
         elif op == "camera" and self.maker is not None:
             self.maker.renderer.camera_name = cmd["name"]
         elif op == "color_by" and self.maker is not None:

@@ -53,10 +53,10 @@ WORLD = "changes the walls or the grid (container, planes, obstacles, support ra
 AT_LOAD = "is checked once, when the scene is loaded"
 AT_START = "is read once, when the run starts"
 RUN_LENGTH = "fixes the run's length when it starts (--steps / --until)"
-PEERS = "fixes the peers' blocks when the peers start"
+PEERS = "fixes the peers' blocks when the peers start (balancing moves the cuts between them)"
 VIEWER = ("is read by the viewer when it starts; switch the view with the commands camera NAME and "
           "color_by QUANTITY")
-OUTPUT = "is read once, when the run starts (the command checkpoint writes a checkpoint now)"
+OUTPUT = "fixes what the VTK series holds when the run starts"
 
 
 @dataclass(frozen=True)
@@ -238,10 +238,10 @@ class DecompositionSection:
                        length=(3,))
     balance_every: int = spec(0, "move the cut planes every this many steps so peers get near-equal work "
                                  "(0 = fixed cuts; the first cuts always balance the initial particles)",
-                              range=(0, 10**9))
+                              range=(0, 10**9), control=LIVE)
     balance_by: str = spec("time", "what balancing equalises: measured compute time (particles weighted by each "
                                    "peer's seconds per particle) or particle counts (reproducible cuts)",
-                           choices=("time", "particles"))
+                           choices=("time", "particles"), control=LIVE)
 
 
 @dataclass(frozen=True)
@@ -272,10 +272,10 @@ class Render:
 @dataclass(frozen=True)
 class Output:
     checkpoint_every: int = spec(0, "write a checkpoint every this many steps (0 = none; --checkpoint-every)",
-                                 range=(0, 10**9))
-    checkpoint_keep: int = spec(2, "how many of the newest checkpoints to keep", range=(1, 10**6))
+                                 range=(0, 10**9), control=LIVE)
+    checkpoint_keep: int = spec(2, "how many of the newest checkpoints to keep", range=(1, 10**6), control=LIVE)
     vtk_every: int = spec(0, "write ParaView files (.vtp particles, .pvd series) every this many steps "
-                             "(0 = none; --vtk K)", range=(0, 10**9))
+                             "(0 = none; --vtk K)", range=(0, 10**9), control=LIVE)
     surface: bool = spec(False, "with vtk_every: also extract the fluid surface (marching cubes) per frame")
     surface_resolution: float = spec(0.5, "surface sampling grid step, in particle spacings", range=(0.1, 4.0))
 

@@ -129,6 +129,12 @@ CASES = {
     "boundary.friction": (INTO_WALLS, "boundary.friction=0.9", True),
     "boundary.gap": (INTO_WALLS, "boundary.gap=0.45", True),
     "run.max_density_ratio": ((), "run.max_density_ratio=2.5", False),  # a health limit: no effect unless hit
+    # read by the run driver, not the step: no effect on the particles (test_the_driver_follows_...)
+    "decomposition.balance_every": ((), "decomposition.balance_every=4", False),
+    "decomposition.balance_by": ((), "decomposition.balance_by=particles", False),
+    "output.checkpoint_every": ((), "output.checkpoint_every=50", False),
+    "output.checkpoint_keep": ((), "output.checkpoint_keep=3", False),
+    "output.vtk_every": ((), "output.vtk_every=50", False),
 }
 
 
@@ -277,3 +283,27 @@ def test_what_a_held_peer_is_sent_is_checked_before_it_is_applied():
         with pytest.raises(Reject):
             peer1._hold_check(bad)
     assert sim.scene.sph.alpha != 0.1  # checking applies nothing
+
+
+@pytest.mark.fast
+@pytest.mark.parametrize("run", RUNS, ids=list(RUNS))
+def test_the_driver_follows_the_keys_it_reads_itself(run, tmp_path):
+    # Given a run that, after a few steps, starts checkpointing every 4 steps keeping 3, writing VTK
+    # files every 8 steps and (on peers) moving its cuts every 4 steps
+    sc = scene("tiny")
+    script = [(5, "set output.checkpoint_every=4", False), (5, "set output.checkpoint_keep=3", False),
+              (5, "set output.vtk_every=8", False), (5, "set decomposition.balance_every=4", False)]
+    summary, final, acks = RUNS[run](sc, tmp_path / "run", script=script)
+    assert [a[1] for a in acks] == ["accepted"] * 4, acks
+    # Then the checkpoints, VTK files and rebalances follow the new values from the step they were set at
+    steps = sorted(int(d.name.split("_")[1]) for d in (tmp_path / "run" / "checkpoints").glob("step_*"))
+    assert steps == [8, 12, 16] and summary["checkpoints"]["every"] == 4 and summary["checkpoints"]["written"] == 3
+    vtk = sorted((tmp_path / "run" / "vtk").glob("particles_s*_p0000.vtp"))
+    assert [int(p.name[11:19]) for p in vtk] == [8, 16]
+    if run == "two peers":  # balancing opens a step (or the final refresh) whose steps done are a multiple of 4
+        k = next(step for step, text in summary["controls"] if "balance_every" in text)
+        due = len([s for s in range(k, STEPS + 1) if s % 4 == 0])
+        assert due > 0 and all(p["rebalances"] == due for p in summary["per_peer"]), summary["per_peer"]
+    # And the particles end as without any of it (balancing moves cuts, never the physics)
+    _, plain, _ = run_one(sc, tmp_path / "plain")
+    assert_same(final, plain)
