@@ -292,7 +292,8 @@ def build_parser() -> argparse.ArgumentParser:
                     " (docs/USAGE.md says why the others cannot change). A paused run waits for resume as long as "
                     "it takes, and applies what it is sent meanwhile at once.")
     control.add_argument("--run-id", default=None,
-                         help="the run's id (default: from OUT_DIR/run.json, written by sph run --peers/--hosts)")
+                         help="the run's id (default: from OUT_DIR/run.json, written by sph run --peers/--hosts/"
+                              "--control)")
     _add_zenoh_option(control, "rank 0's Zenoh endpoint, e.g. tls/127.0.0.1:7447 (default: from OUT_DIR/run.json)")
     control.add_argument("--world", type=_positive_int, default=None,
                          help="number of peers in the run (needed with --tls: the access-control list names them; "
@@ -875,8 +876,8 @@ def read_run_info(out: Path) -> dict:
     try:
         info = json.loads(path.read_text())
     except OSError as e:
-        raise UsageError(f"{path}: cannot read it ({e.strerror}); runs started with sph run --peers N or "
-                         "--hosts write it") from None
+        raise UsageError(f"{path}: cannot read it ({e.strerror}); runs started with sph run --peers N, --hosts "
+                         "or --control (one process) write it") from None
     except (ValueError, RecursionError) as e:
         raise UsageError(f"{path}: not JSON ({str(e)[:120]})") from None
     ok = (isinstance(info, dict) and isinstance(info.get("run_id"), str)
