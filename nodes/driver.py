@@ -251,7 +251,8 @@ def drive(peer: PeerRun, plan: RunPlan, frames: FrameSink | None = None):
     controls = Controls(sim, halo, endpoint, frames.maker if frames is not None else None, rank, world,
                         checkpoint=saved.save if root is not None else None,
                         keep_block=None if single else (lambda: take_block(sim, halo.dec, rank)), stop=plan.stop,
-                        on_set=lambda key, value: live_change(key, value))
+                        on_set=lambda key, value: live_change(key, value),
+                        on_hold=lambda held: progress("paused" if held else "running"))
     if plan.out is not None:  # before the first step: a run that cannot keep its result does not start
         prepare_output(plan.out)
         write_summary(plan.out / "summary.json", progress_summary(sim, scene, world, peer.t_start, "running"))
@@ -260,6 +261,13 @@ def drive(peer: PeerRun, plan: RunPlan, frames: FrameSink | None = None):
     if scene.output.vtk_every:
         from sphcore.vtk import VtkWriter  # VTK is loaded only by runs that write it
         vtk = VtkWriter(root.parent, scene, rank, world)
+
+    def progress(status: str):
+        """Rank 0 rewrites summary.json while the run goes on: where it is, what was applied."""
+        if plan.out is not None:
+            write_summary(plan.out / "summary.json", dict(progress_summary(sim, scene, world, peer.t_start, status),
+                                                          controls=[list(c) for c in controls.applied]))
+        last_summary[0] = time.perf_counter()
 
     def live_change(key, value):
         """A key changed during the run (control ``set``) that the driver itself reads: how often it
@@ -295,10 +303,8 @@ def drive(peer: PeerRun, plan: RunPlan, frames: FrameSink | None = None):
             vtk.write(sim, block_box())
         if frames is not None:
             frames.show(sim)
-        if plan.out is not None and time.perf_counter() - last_summary[0] >= plan.summary_every_s:
-            write_summary(plan.out / "summary.json", dict(progress_summary(sim, scene, world, peer.t_start, "running"),
-                                                          controls=[list(c) for c in controls.applied]))
-            last_summary[0] = time.perf_counter()
+        if time.perf_counter() - last_summary[0] >= plan.summary_every_s:
+            progress("running")
 
     try:
         loop = yield from advance(sim, halo, scene, plan.steps, plan.until, plan.progress and rank == 0,

@@ -94,16 +94,18 @@ class Controls:
     What was applied is ``applied`` [(step, description)] (summary.json) and logged."""
 
     def __init__(self, sim, halo, endpoint, maker, rank: int = 0, world: int = 1, checkpoint=None, keep_block=None,
-                 stop=None, on_set=None):
+                 stop=None, on_set=None, on_hold=None):
         """``checkpoint``: a generator function writing this peer's checkpoint of the current step
         (None: the run writes none, and the command is rejected); ``keep_block``: after a reset,
         keep only this peer's particles (None: a single process keeps them all); ``stop()``: the
         signal asking the run to end, or None (a held single process then goes on, to stop);
         ``on_set(key, value)``: after a ``set``, for the keys the run driver reads itself (how often
-        it checkpoints, writes VTK files, balances)."""
+        it checkpoints, writes VTK files, balances); ``on_hold(held)``: when the run is held and when it
+        goes on (rank 0 marks summary.json "paused")."""
         self.sim, self.halo, self.endpoint, self.maker = sim, halo, endpoint, maker
         self.rank, self.world = rank, world
         self.checkpoint, self.keep_block, self.stop, self.on_set = checkpoint, keep_block, stop, on_set
+        self.on_hold = on_hold
         self.applied = []        # (step, description), for the summary
         self.checkpointed = None  # the step of the last checkpoint a command wrote (the run's own is then skipped)
         self._leftover = []      # rank 0: commands that arrived with a resume, validated as in a running run
@@ -228,6 +230,8 @@ class Controls:
         meanwhile and applies them at once on every peer."""
         step = self.sim.step_index
         index = 0
+        if self.on_hold is not None:
+            self.on_hold(True)
         if self.rank == 0:
             self._paused_at = step
             while self._paused_at is not None:
@@ -268,6 +272,8 @@ class Controls:
                     yield from self._apply(cmd)
                 if msg["resume"]:
                     break
+        if self.on_hold is not None:
+            self.on_hold(False)
         log.info("peer %d: resumed after step %d", self.rank, step)
 
     def _hold_check(self, msg: dict):

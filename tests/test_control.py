@@ -103,6 +103,8 @@ def test_a_single_process_run_listens_for_every_command(tmp_path, capsys):
         assert rc == 2 and "terms.drag = 1.0" in err and "force-term stages" in err and "Traceback" not in err, err
         assert control_of(out, "step", "5")[::2] == (0, k + 5)
         log.wait_for(f"step {k + 5}: pause", timeout=60, proc=p)
+        held = json.loads((out / "summary.json").read_text())  # rewritten when the run is held
+        assert held["status"] == "paused" and held["steps"] == k + 5 and held["controls"][-1] == [k + 5, "pause"]
         assert control_of(out, "reset")[::2] == (0, k + 5)
         p.send_signal(signal.SIGINT)
         assert p.wait(timeout=60) == 130, log.text()
