@@ -9,6 +9,7 @@ run has done the given steps (one command per poll; ``held`` ones only while the
 the test reads the step each was applied after from summary.json."""
 import json
 import time
+import tomllib
 
 import numpy as np
 import pytest
@@ -161,7 +162,7 @@ def test_a_key_set_during_the_run_equals_resuming_with_it_set(key, run, tmp_path
     assert [c[0] for c in summary["controls"]] == [k] and summary["controls"][0][1].startswith(f"set {key_now} = ")
     _, wanted = live_change(sc, text)
     section, name = key.split(".")
-    written = scene_from_dict(__import__("tomllib").loads((tmp_path / "controlled" / "scene.toml").read_text()))
+    written = scene_from_dict(tomllib.loads((tmp_path / "controlled" / "scene.toml").read_text()))
     assert getattr(getattr(written, section), name) == getattr(getattr(wanted, section), name)
     # And the final state is bitwise the run checkpointed at step k and resumed with KEY set
     reference, _ = resumed_with(sc, tmp_path / "reference", k, text)
