@@ -895,6 +895,10 @@ def _field_of(path: list, text: str) -> tuple[str, dataclasses.Field, str]:
     if path[0] not in SECTIONS:
         raise SceneError(f"{text!r}: unknown section '{path[0]}'{_did_you_mean(path[0], SECTIONS)} "
                          f"(sections: {', '.join(SECTIONS)})")
+    for i, seg in enumerate(path):  # an index follows an array of tables ([[fluid.blocks]], [[obstacles]])
+        before = ".".join(s for s in path[:i] if isinstance(s, str))
+        if isinstance(seg, int) and (before not in LIST_ITEMS or isinstance(path[i - 1], int)):
+            raise SceneError(f"{text!r}: [{seg}] after {before!r}, which is not an array of tables")
     cls, where, names = SECTIONS[path[0]], path[0], [p for p in path if isinstance(p, str)]
     for name in names[1:-1]:
         if f"{where}.{name}" not in LIST_ITEMS:

@@ -145,6 +145,8 @@ def test_a_single_process_run_listens_for_every_command(tmp_path, capsys):
     ("set render.width=10", "not settable at run time: it is read by the viewer"),
     ("set fluid.blocks[0].velocity=[1,0,0]", "not settable at run time: it changes the particle set"),
     ("set sph.alhpa=0.1", "did you mean 'alpha'"),
+    ("set sph.alpha[0]=0.3", "[0] after 'sph.alpha', which is not an array of tables"),
+    ("set fluid.blocks[0][1].min=1", "[1] after 'fluid.blocks', which is not an array of tables"),
     ("set nosuch.key=1", "unknown section"),
     ("set sph.alpha", "expected set KEY=VALUE"),
     ("color_by temperature", "color_by 'temperature': allowed speed"),
