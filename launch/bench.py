@@ -6,7 +6,8 @@ With ``--external`` the same scene (same tank, column, spacing and step count) r
 SPlisHSPlasH in subprocesses (``launch/external``), so all figures come from one run on one
 machine, and ratios are printed side by side. With ``--peers 1 2 ...`` each case also runs as
 ``sph run --peers P`` (P processes over Zenoh on this machine, ``--threads`` numba threads each),
-timed by the run's own summary, and the multi-peer speed-up over one peer is printed.
+timed by the run's own summary, and the multi-peer speed-up over one peer is printed. Last, per
+backend, about how many particles fit in one 16.67 ms step (``frame_budget``).
 """
 from __future__ import annotations
 
@@ -146,15 +147,18 @@ def run_bench(args) -> int:
             results += _external(dx, args.steps, args.threads)
         if args.peers != [1]:
             results += _peer_cases(scene_path, dx, args)
+    budget = []
     if not args.network:
         _print_walk_ratios(results)
         _print_ratios(results)
         _print_peer_ratios(results)
+        budget = frame_budget(results)
+        _print_frame_budget(budget)
     report = {
         "date": started.isoformat(timespec="seconds"), "command": "sph " + " ".join(sys.argv[1:]),
         "machine": {"platform": platform.platform(), "cpu": _cpu_name(), "cores": numba.config.NUMBA_NUM_THREADS,
                     "python": platform.python_version(), "numba": numba.__version__, "device": device},
-        "scene": str(scene_path), "results": results,
+        "scene": str(scene_path), "results": results, "frame_budget": budget,
     }
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
@@ -281,6 +285,41 @@ def _print_ratios(results: list[dict]):
                 print(f"  ours {precision} vs {t['code']} {t['method']} threads={t['threads']} "
                       f"N={o['particles']}/{t['particles']}: "
                       f"{o['particle_steps_per_s'] / t['particle_steps_per_s']:.2f}x")
+
+
+FRAME_S = 1.0 / 60.0  # seed 001's real-time figure: the particles one 16.67 ms frame (60 per second) can step
+
+
+def frame_budget(results: list[dict]) -> list[dict]:
+    """Per backend, precision and thread count of this run's own cases: about how many particles fit
+    in one 16.67 ms step, from the measured steps/s (particle-steps/s x 16.67 ms, taken from the case
+    whose step time is nearest 16.67 ms, since the rate per particle changes with N); ``measured``
+    says whether cases on both sides of 16.67 ms were run (else it is extrapolated)."""
+    out = []
+    groups = {}
+    for r in results:
+        if r.get("code") == "sphfluid" and "peers" not in r and r.get("steps_per_s"):
+            groups.setdefault((r.get("backend", "cpu"), r["precision"], r["threads"]), []).append(r)
+    for (backend, precision, threads), cases in groups.items():
+        near = min(cases, key=lambda r: abs(np.log(FRAME_S * r["steps_per_s"])))
+        step_s = [1.0 / r["steps_per_s"] for r in cases]
+        out.append({"backend": backend, "device": near.get("device", backend), "precision": precision,
+                    "threads": threads, "particles": int(near["particle_steps_per_s"] * FRAME_S),
+                    "from_particles": near["particles"], "from_step_ms": 1e3 / near["steps_per_s"],
+                    "measured": min(step_s) <= FRAME_S <= max(step_s)})
+    return out
+
+
+def _print_frame_budget(budget: list[dict]):
+    if not budget:
+        return
+    print(f"\nparticles in one {FRAME_S * 1e3:.2f} ms step (60 steps/s, seed 001's real-time figure), from the "
+          "measured steps/s:")
+    for b in budget:
+        where = b["device"] if b["backend"] == "cuda" else f"cpu threads={b['threads']}"
+        how = "between the sizes run" if b["measured"] else "extrapolated: run sizes on both sides of it"
+        print(f"  {where} {b['precision']}: about {b['particles']:,} particles (N={b['from_particles']:,} took "
+              f"{b['from_step_ms']:.2f} ms per step; {how})")
 
 
 def _cpu_name() -> str:
