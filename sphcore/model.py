@@ -57,12 +57,9 @@ class Model:
     use_drift, use_vorticity, use_diffusion; force_terms ((stage, scene value)
     of stages.FORCE_TERMS that are on); extra_names (the arrays carried in state.extra)."""
 
-    def __init__(self, scene: Scene, precision: str | None = None, backend: str = "cpu",
-                 neighbours: str | None = None):
+    def __init__(self, scene: Scene, precision: str | None = None, backend: str = "cpu"):
         self.scene = scene
-        self.neighbours = neighbours or scene.run.neighbours
-        if self.neighbours not in NEIGHBOURS:
-            raise ValueError(f"neighbours must be one of {', '.join(NEIGHBOURS)}, got {self.neighbours!r}")
+        self.neighbours = scene.run.neighbours
         self.precision = precision or scene.run.precision
         if self.precision == "auto":  # float32 is the GPU's native precision; float64 the CPU's default
             self.precision = "f32" if backend == "cuda" else "f64"

@@ -78,10 +78,8 @@ class Simulation:
     scene fixes (H, kernel, walls, prm, flags...) is the ``model``'s, read through the simulation
     (``sim.H`` is ``sim.model.H``)."""
 
-    def __init__(self, scene: Scene, precision: str | None = None, backend: str = "cpu", device: int | None = None,
-                 neighbours: str | None = None):
-        """``backend`` "cpu" or "cuda"; ``device``: the GPU index for cuda (modulo the GPUs visible);
-        ``neighbours``: "lists" or "walk" (model.NEIGHBOURS), overriding the scene's run.neighbours."""
+    def __init__(self, scene: Scene, precision: str | None = None, backend: str = "cpu", device: int | None = None):
+        """``backend`` "cpu" or "cuda"; ``device``: the GPU index for cuda (modulo the GPUs visible)."""
         if backend not in BACKENDS:
             raise ValueError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
         self.backend = backend
@@ -89,7 +87,7 @@ class Simulation:
         if backend == "cuda":  # fail before any set-up work when there is no GPU
             from sphcore.backends import cuda as cuda_backend
             self.device_name = cuda_backend.require(device)
-        self.model = model = Model(scene, precision, backend, neighbours)
+        self.model = model = Model(scene, precision, backend)
         ids, x, v = generate_particles(scene, model.walls)
         self._state = ParticleState.create(ids, x, v, np.full(len(ids), model.mass), model.dtype)
         self.n_particles = len(ids)
