@@ -10,7 +10,6 @@ run, scene.LIVE), which copies the live attributes of a Model rebuilt from the c
 """
 from __future__ import annotations
 
-
 import numpy as np
 
 from sphcore import grid as grid_mod
