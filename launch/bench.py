@@ -6,7 +6,8 @@ With ``--external`` the same scene (same tank, column, spacing and step count) r
 SPlisHSPlasH in subprocesses (``launch/external``), so all figures come from one run on one
 machine, and ratios are printed side by side. With ``--peers 1 2 ...`` each case also runs as
 ``sph run --peers P`` (P processes over Zenoh on this machine, ``--threads`` numba threads each),
-timed by the run's own summary, and the multi-peer speed-up over one peer is printed.
+timed by the run's own summary, and the multi-peer speed-up over one peer is printed. Last, per
+backend, about how many particles fit in one 16.67 ms step (``frame_budget``).
 """
 from __future__ import annotations
 
@@ -55,20 +56,61 @@ def _fixed(scene_path: Path, dx: float) -> list[str]:
     return [f"particles.spacing={dx!r}", "time.mode='fixed'", f"time.dt={fixed_dt(scene_path, dx)!r}"]
 
 
+def _memory_kb(field: str) -> int | None:
+    """VmRSS (resident now) or VmHWM (peak since the last reset) of this process in kB (Linux)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith(field + ":"):
+                return int(line.split()[1])
+    except OSError:
+        pass
+    return None
+
+
+def _reset_peak_memory():
+    """Reset VmHWM to the current RSS (Linux: writing 5 to /proc/self/clear_refs)."""
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+    except OSError:
+        pass
+
+
+def _device_used() -> int | None:
+    from numba import cuda
+    try:
+        free, total = cuda.current_context().get_memory_info()
+        return int(total - free)
+    except Exception:  # noqa: BLE001 - no device (simulator) or a driver without the query
+        return None
+
+
 def bench_case(scene_path: Path, dx: float, precision: str, threads: int, steps: int, backend: str = "cpu",
                neighbours: str = "lists") -> dict:
+    """One timed case. Memory per particle: the host's peak RSS during the timed steps over its RSS
+    before set-up (so it holds the state, scratch and grid; compiled code too on a cold cache), and on
+    a GPU the device memory in use after the steps over that before set-up."""
     numba.set_num_threads(threads)
     scene = load_scene(scene_path, _fixed(scene_path, dx) + [f"run.neighbours={neighbours!r}"])
+    rss_before = _memory_kb("VmRSS")
+    device_before = _device_used() if backend == "cuda" else None
     sim = Simulation(scene, precision, backend)
     t0 = time.perf_counter()
     sim.step()  # compile or load the cache
     first = time.perf_counter() - t0
     sim.timers.reset()
+    _reset_peak_memory()
     t0 = time.perf_counter()
     for _ in range(steps):
         sim.step()
     wall = time.perf_counter() - t0
     stages = {k: v["median_s"] for k, v in sim.timers.summary().items()}
+    peak = _memory_kb("VmHWM")
+    n = sim.n_particles
+    host_bpp = (peak - rss_before) * 1024 / n if peak is not None and rss_before is not None else None
+    device_bpp = None
+    if device_before is not None:
+        used = _device_used()
+        device_bpp = (used - device_before) / n if used is not None else None
     return {
         "code": "sphfluid", "method": "wcsph", "backend": backend, "device": sim.device_name,
         "precision": precision, "threads": threads if backend == "cpu" else 0,
@@ -76,7 +118,7 @@ def bench_case(scene_path: Path, dx: float, precision: str, threads: int, steps:
         "particle_steps_per_s": sim.n_particles * steps / wall, "steps_per_s": steps / wall, "first_step_s": first,
         "neighbours": sim.neighbours_sum / max(sim.state.n_owned, 1), "neighbour_search": neighbours,
         "stage_median_s": stages,
-        "leaks": sim.leaks,
+        "leaks": sim.leaks, "host_bytes_per_particle": host_bpp, "device_bytes_per_particle": device_bpp,
     }
 
 
@@ -105,15 +147,18 @@ def run_bench(args) -> int:
             results += _external(dx, args.steps, args.threads)
         if args.peers != [1]:
             results += _peer_cases(scene_path, dx, args)
+    budget = []
     if not args.network:
         _print_walk_ratios(results)
         _print_ratios(results)
         _print_peer_ratios(results)
+        budget = frame_budget(results)
+        _print_frame_budget(budget)
     report = {
         "date": started.isoformat(timespec="seconds"), "command": "sph " + " ".join(sys.argv[1:]),
         "machine": {"platform": platform.platform(), "cpu": _cpu_name(), "cores": numba.config.NUMBA_NUM_THREADS,
                     "python": platform.python_version(), "numba": numba.__version__, "device": device},
-        "scene": str(scene_path), "results": results,
+        "scene": str(scene_path), "results": results, "frame_budget": budget,
     }
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
@@ -204,8 +249,13 @@ def _row(r: dict) -> str:
     where = "cuda     " if r.get("backend") == "cuda" else f"threads={r['threads']}"
     where += " walk " if r.get("neighbour_search") == "walk" else ""
     rate = f" {r['steps_per_s']:7.1f} steps/s" if r.get("backend") == "cuda" else ""
+    memory = ""
+    for key, label in (("host_bytes_per_particle", "host"), ("device_bytes_per_particle", "device")):
+        if r.get(key) is not None:
+            memory += f" {label}={r[key]:.0f}B/particle"
     return (f"{r['code']:>13} {r['method']:>6} {r.get('precision', 'f64'):>4} {where} "
-            f"N={r['particles']:>8} nbrs={nb_text} {r['particle_steps_per_s']:10.3e} particle-steps/s{rate}{split}")
+            f"N={r['particles']:>8} nbrs={nb_text} {r['particle_steps_per_s']:10.3e} particle-steps/s{rate}"
+            f"{memory}{split}")
 
 
 def _print_walk_ratios(results: list[dict]):
@@ -235,6 +285,41 @@ def _print_ratios(results: list[dict]):
                 print(f"  ours {precision} vs {t['code']} {t['method']} threads={t['threads']} "
                       f"N={o['particles']}/{t['particles']}: "
                       f"{o['particle_steps_per_s'] / t['particle_steps_per_s']:.2f}x")
+
+
+FRAME_S = 1.0 / 60.0  # seed 001's real-time figure: the particles one 16.67 ms frame (60 per second) can step
+
+
+def frame_budget(results: list[dict]) -> list[dict]:
+    """Per backend, precision and thread count of this run's own cases: about how many particles fit
+    in one 16.67 ms step, from the measured steps/s (particle-steps/s x 16.67 ms, taken from the case
+    whose step time is nearest 16.67 ms, since the rate per particle changes with N); ``measured``
+    says whether cases on both sides of 16.67 ms were run (else it is extrapolated)."""
+    out = []
+    groups = {}
+    for r in results:
+        if r.get("code") == "sphfluid" and "peers" not in r and r.get("steps_per_s"):
+            groups.setdefault((r.get("backend", "cpu"), r["precision"], r["threads"]), []).append(r)
+    for (backend, precision, threads), cases in groups.items():
+        near = min(cases, key=lambda r: abs(np.log(FRAME_S * r["steps_per_s"])))
+        step_s = [1.0 / r["steps_per_s"] for r in cases]
+        out.append({"backend": backend, "device": near.get("device", backend), "precision": precision,
+                    "threads": threads, "particles": int(near["particle_steps_per_s"] * FRAME_S),
+                    "from_particles": near["particles"], "from_step_ms": 1e3 / near["steps_per_s"],
+                    "measured": min(step_s) <= FRAME_S <= max(step_s)})
+    return out
+
+
+def _print_frame_budget(budget: list[dict]):
+    if not budget:
+        return
+    print(f"\nparticles in one {FRAME_S * 1e3:.2f} ms step (60 steps/s, seed 001's real-time figure), from the "
+          "measured steps/s:")
+    for b in budget:
+        where = b["device"] if b["backend"] == "cuda" else f"cpu threads={b['threads']}"
+        how = "between the sizes run" if b["measured"] else "extrapolated: run sizes on both sides of it"
+        print(f"  {where} {b['precision']}: about {b['particles']:,} particles (N={b['from_particles']:,} took "
+              f"{b['from_step_ms']:.2f} ms per step; {how})")
 
 
 def _cpu_name() -> str:

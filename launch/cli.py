@@ -5,7 +5,7 @@
     sph viewer | control | render | validate | study | replay   (see sph COMMAND --help)
     sph bench [--sizes ...] [--precisions ...] [--threads ...] [--external] [--peers 1 2]
     sph scene CONFIG.toml [--full]   check a scene as sph run does; a summary (--full: resolved TOML)
-    sph control OUT_DIR COMMAND      pause, resume, set ... a running multi-peer run (OUT_DIR/run.json)
+    sph control OUT_DIR COMMAND      pause, step N, set, reset, checkpoint ... a running run (OUT_DIR/run.json)
     sph examples                     the shipped scenes, one line each
 
 Exit codes: 0 success, 2 bad input (scene, option or override; nothing is written), 3 the simulation
@@ -104,6 +104,11 @@ def _add_zenoh_option(parser, help: str):
                         help=argparse.SUPPRESS)
 
 
+def _live_keys() -> list[str]:
+    from sphcore.scene import live_keys
+    return live_keys()
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="sph",
@@ -171,6 +176,10 @@ def build_parser() -> argparse.ArgumentParser:
                           "(default: python3)")
     run.add_argument("--listen-host", default=None,
                      help="--hosts: the address each peer listens on (default: its own name in the hosts file)")
+    run.add_argument("--control", action="store_true",
+                     help="one process: listen for sph control OUT COMMAND (pause, step N, set KEY=VALUE, reset, "
+                          "checkpoint...) on a free loopback port, credentials in OUT/tls, where in OUT/run.json; "
+                          "runs of several peers always listen")
     run.add_argument("--insecure", action="store_true",
                      help="plain TCP between the run's processes: no authentication, no encryption, loopback "
                           "only (by default the launcher makes a run CA and one certificate per process in "
@@ -274,14 +283,17 @@ def build_parser() -> argparse.ArgumentParser:
         "control", help="pause/resume a running run, switch its camera or change safe parameters",
         usage="sph control [-h] [--run-id ID --zenoh ENDPOINT --world N] [--timeout S] [--tls DIR | --insecure] "
               "[OUT_DIR] COMMAND [ARG ...]",
-        description="Send a command to a running multi-peer run (connect to rank 0's endpoint) and wait for rank "
-                    "0's answer: 'accepted at step N' (every peer applies it after step N, and the viewer records "
-                    "it; exit 0) or 'rejected: REASON' (exit 2); no answer within --timeout exits 4. Commands: "
-                    "pause | resume | camera NAME | color_by speed|density|pressure|rank | set KEY=VALUE with KEY "
-                    "one of forces.external, forces.gravity, sph.alpha, sph.nu, boundary.friction, "
-                    "boundary.restitution. A paused run waits for resume as long as it takes.")
+        description="Send a command to a running run (sph run --peers N, --hosts, or one process with --control; "
+                    "connect to rank 0's endpoint) and wait for rank 0's answer: 'accepted at step N' (every peer "
+                    "applies it after step N, and the viewer records it; exit 0) or 'rejected: REASON' (exit 2); no "
+                    "answer within --timeout exits 4. Commands: pause | resume | step N (N more steps, then pause) | "
+                    "reset (back to the initial particles) | checkpoint (write one now) | camera NAME | color_by "
+                    "speed|density|pressure|rank | set KEY=VALUE with KEY one of " + ", ".join(_live_keys()) +
+                    " (docs/USAGE.md says why the others cannot change). A paused run waits for resume as long as "
+                    "it takes, and applies what it is sent meanwhile at once.")
     control.add_argument("--run-id", default=None,
-                         help="the run's id (default: from OUT_DIR/run.json, written by sph run --peers/--hosts)")
+                         help="the run's id (default: from OUT_DIR/run.json, written by sph run --peers/--hosts/"
+                              "--control)")
     _add_zenoh_option(control, "rank 0's Zenoh endpoint, e.g. tls/127.0.0.1:7447 (default: from OUT_DIR/run.json)")
     control.add_argument("--world", type=_positive_int, default=None,
                          help="number of peers in the run (needed with --tls: the access-control list names them; "
@@ -357,6 +369,7 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("file", type=Path, help="a recording, e.g. runs/dam_break/run.rrd")
     replay.add_argument("--serve-web", action="store_true", help="serve the web viewer on 127.0.0.1 instead")
     _add_port_options(replay)
+    replay.add_argument("--port", type=_port, dest="web_port", metavar="PORT", help="the same as --web-port")
 
     scene = sub.add_parser(
         "scene", help="check a scene as sph run does and summarise it (--full: the resolved TOML)",
@@ -414,6 +427,9 @@ def main(argv: list[str] | None = None) -> int:
                         format="%(asctime)s %(name)s %(levelname)s %(message)s", datefmt="%H:%M:%S")
     # numba-cuda logs every device allocation and free at INFO: keep it to warnings unless --verbose
     logging.getLogger("numba").setLevel(logging.INFO if args.verbose else logging.WARNING)
+    if args.command in ("run", "peer", "viewer", "validate", "study", "bench"):
+        from launch.compiling import report_compiling
+        report_compiling()  # a scene's first run compiles its kernels for minutes: say so, with the time
     from nodes.endpoint import TransportError
     from sphcore.backends import BackendUnavailable
     from sphcore.scene import SceneError
@@ -627,8 +643,9 @@ def _scene_for_run(args):
             raise UsageError("give a scene file (e.g. configs/dam_break.toml) or --resume DIR")
         return load_scene(args.config, args.overrides), None
     from sphcore.checkpoint import CheckpointError, load
-    if args.config is not None or args.overrides:
-        raise UsageError("--resume uses the scene saved with the checkpoint: give no scene file and no --set")
+    if args.config is not None:
+        raise UsageError("--resume uses the scene saved with the checkpoint: give no scene file (--set may change "
+                         "the keys that can change during a run)")
     try:
         ckpt = load(args.resume)
     except CheckpointError as e:
@@ -640,6 +657,12 @@ def _scene_for_run(args):
         scene = scene_from_dict(ckpt.manifest["scene"], source=str(ckpt.path))
     except SceneError as e:
         raise UsageError(f"--resume: {ckpt.path}/manifest.json: its scene: {e}") from None
+    from sphcore.scene import live_change
+    for text in args.overrides:  # only what a running run could change (sphcore/scene.py LIVE)
+        try:
+            scene = live_change(scene, text)[1]
+        except SceneError as e:
+            raise UsageError(f"--resume with --set {text}: {e}") from None
     return scene, ckpt
 
 
@@ -711,7 +734,7 @@ def _cmd_run(args) -> int:
     summary = run_scene(scene, out, args.precision or (ckpt.manifest["precision"] if ckpt else None), args.steps,
                         args.until, args.threads, progress=not args.quiet, viewer=viewer_options(args, scene, out),
                         resume=ckpt, checkpoint_every=args.checkpoint_every, backend=args.backend,
-                        device=args.device)
+                        device=args.device, control=args.control, secure=not args.insecure)
     if summary.get("status") == "interrupted":
         stop = summary["interrupted"]
         print(f"sph run: interrupted ({stop['signal']}) at step {stop['step']}; the outputs of that step are in "
@@ -742,7 +765,8 @@ def viewer_options(args, scene, out: Path) -> dict | None:
         return None
     return {"record": args.record or out / "run.rrd", "spawn": args.spawn, "serve_web": args.serve_web,
             "grpc_port": args.grpc_port, "web_port": args.web_port,
-            "connect": args.rerun_url}
+            "connect": args.rerun_url,
+            "expected_frames": args.steps // scene.render.every if args.steps else None}  # the size estimate
 
 
 def _cmd_viewer(args) -> int:
@@ -777,7 +801,8 @@ def _cmd_viewer(args) -> int:
         print("viewer ready", flush=True)
 
     frames = run_viewer(scene, args.run_id, args.listen, args.zenoh, rec, domain_box(scene), args.world, 0,
-                        ready=ready, idle_timeout=args.idle_timeout, stats_path=args.stats, trust=trust)
+                        ready=ready, idle_timeout=args.idle_timeout, stats_path=args.stats, trust=trust,
+                        record=args.record)
     print(f"sph viewer: {frames} frames", file=sys.stderr)
     return 0
 
@@ -854,8 +879,8 @@ def read_run_info(out: Path) -> dict:
     try:
         info = json.loads(path.read_text())
     except OSError as e:
-        raise UsageError(f"{path}: cannot read it ({e.strerror}); runs started with sph run --peers N or "
-                         "--hosts write it") from None
+        raise UsageError(f"{path}: cannot read it ({e.strerror}); runs started with sph run --peers N, --hosts "
+                         "or --control (one process) write it") from None
     except (ValueError, RecursionError) as e:
         raise UsageError(f"{path}: not JSON ({str(e)[:120]})") from None
     ok = (isinstance(info, dict) and isinstance(info.get("run_id"), str)

@@ -202,6 +202,7 @@ def run_local_peers(config: Path, n_peers: int, out: Path, args, viewer: dict | 
         if view is not None and code == 0:
             try:
                 view.wait(timeout=30)  # it stops by itself after rank 0's end notice
+                _add_viewer_summary(out / "summary.json", viewer)
             except subprocess.TimeoutExpired:
                 log.warning("the viewer did not stop 30 s after the peers; stopping it")
         # after a failure the viewer is stopped at once (SIGTERM: it flushes the recording first)
@@ -211,6 +212,19 @@ def run_local_peers(config: Path, n_peers: int, out: Path, args, viewer: dict | 
         raise
     finally:
         _stop(supervisor.processes() + ([view] if view else []), signal.SIGTERM)
+
+
+def _add_viewer_summary(summary_path: Path, viewer: dict):
+    """summary.json's "viewer" (frames, drops, latency, recording size) from the viewer's viewer.json."""
+    import json
+
+    from sphcore.output import write_summary
+    stats = Path(viewer["record"]).with_name("viewer.json") if viewer.get("record") else None
+    if stats is None or not stats.is_file() or not summary_path.is_file():
+        return
+    summary = json.loads(summary_path.read_text())
+    summary["viewer"] = json.loads(stats.read_text())
+    write_summary(summary_path, summary)
 
 
 def _watch(procs, grace: float = supervise.GRACE_S) -> int:

@@ -14,9 +14,8 @@ import time
 from pathlib import Path
 
 import numba
-import numpy as np
 
-from nodes.driver import PeerRun, RunPlan, drive, run_blocking
+from nodes.driver import PeerRun, RunPlan, drive, listen_for_control, run_blocking
 from nodes.frames import FrameMaker, domain_box
 from nodes.transport import InProcessNetwork
 from nodes.viewer import Viewer, open_recording
@@ -40,7 +39,8 @@ class LocalFrames:
                              viewer["serve_web"], viewer["connect"], viewer.get("grpc_port"),
                              viewer.get("web_port"))
         self.record = viewer["record"]
-        self.view = Viewer(scene, box, rec, 1, sim.n_particles)
+        self.view = Viewer(scene, box, rec, 1, sim.n_particles, expected_frames=viewer.get("expected_frames"),
+                           record=self.record, announce=lambda text: print(text, flush=True))
         self.maker = FrameMaker(scene, box, 0, 1, sim.n_particles)
 
     def show(self, sim: Simulation):
@@ -48,13 +48,10 @@ class LocalFrames:
             self.view.add(sim.step_index, 0, *self.maker.make(sim))
 
     def close(self):
-        self.view.flush()
-        self.view.rec.flush()
+        self.view.close()
 
     def summary(self) -> dict:
-        view = self.view
-        return {"frames": view.frames, "record": str(self.record) if self.record else None,
-                "composite_latency_ms_median": float(np.median(view.latency_ms)) if view.latency_ms else None}
+        return self.view.summary()
 
     def end(self, step: int):
         pass
@@ -94,7 +91,8 @@ class StopOnSignal:
 
 def run_scene(scene: Scene, out: Path, precision: str | None, steps: int | None, until: float | None,
               threads: int | None, progress: bool = True, viewer: dict | None = None, resume=None,
-              checkpoint_every: int | None = None, backend: str = "cpu", device: int | None = None) -> dict:
+              checkpoint_every: int | None = None, backend: str = "cpu", device: int | None = None,
+              control: bool = False, secure: bool = True) -> dict:
     """Run ``scene`` and write summary.json, final.npz and scene.toml into ``out``; return the summary.
     ``out`` is created and checked before the first step, summary.json is written there at once and
     rewritten every few seconds; Ctrl-C or SIGTERM ends the run after the current step with the
@@ -102,7 +100,8 @@ def run_scene(scene: Scene, out: Path, precision: str | None, steps: int | None,
     ``viewer`` (record / spawn / serve_web / connect) renders a frame every render.every steps and
     logs it to Rerun from this process. ``resume`` (a loaded Checkpoint) continues from it;
     checkpoints are written every ``checkpoint_every`` steps (default: the scene's
-    output.checkpoint_every)."""
+    output.checkpoint_every). ``control``: listen for ``sph control OUT COMMAND`` (nodes/driver.py
+    listen_for_control; ``secure`` False: plain TCP on loopback)."""
     if threads:
         numba.set_num_threads(threads)
     t_start = time.perf_counter()
@@ -114,7 +113,11 @@ def run_scene(scene: Scene, out: Path, precision: str | None, steps: int | None,
     log.info("%s: %d particles, %s, %s", scene.scene.name, sim.n_particles, sim.precision,
              sim.device_name if backend == "cuda" else f"{numba.get_num_threads()} numba threads")
     frames = LocalFrames(scene, sim, viewer) if viewer is not None else None
-    peer = PeerRun(sim, scene, NULL_HALO, InProcessNetwork().endpoint(0), t_start=t_start, t_setup=t_setup)
-    with StopOnSignal() as stopper:
-        plan = RunPlan(steps, until, out, checkpoint_every, progress=progress, stop=stopper.requested)
-        return run_blocking(drive(peer, plan, frames))
+    endpoint = listen_for_control(out, secure) if control else InProcessNetwork().endpoint(0)
+    peer = PeerRun(sim, scene, NULL_HALO, endpoint, t_start=t_start, t_setup=t_setup)
+    try:
+        with StopOnSignal() as stopper:
+            plan = RunPlan(steps, until, out, checkpoint_every, progress=progress, stop=stopper.requested)
+            return run_blocking(drive(peer, plan, frames))
+    finally:
+        endpoint.close()

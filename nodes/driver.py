@@ -31,7 +31,7 @@ from typing import Callable, Protocol
 import numba
 import numpy as np
 
-from nodes.endpoint import Endpoint
+from nodes.endpoint import Endpoint, TransportError
 from nodes.frames import FrameMaker, domain_box
 from nodes.peer import (Controls, PeerRecorder, _empty_check, _entry_check, _final_check, decomposition_for,
                         message_limit, peer_summary, take_block)
@@ -83,8 +83,9 @@ def prepare_output(out: Path):
 
 @dataclass
 class PeerRun:
-    """One peer of a run, set up and ready to step. ``dec`` None: a single process (NULL_HALO, no
-    control channel, nothing to gather, the single-process summary)."""
+    """One peer of a run, set up and ready to step. ``dec`` None: a single process (NULL_HALO,
+    control commands from its endpoint applied after each step, nothing to gather, the
+    single-process summary)."""
 
     sim: Simulation
     scene: Scene
@@ -243,11 +244,15 @@ def drive(peer: PeerRun, plan: RunPlan, frames: FrameSink | None = None):
     sim, scene, halo, endpoint, rank, world = peer.sim, peer.scene, peer.halo, peer.endpoint, peer.rank, peer.world
     single = peer.dec is None
     recorder = None if single else PeerRecorder(sim, endpoint)
-    controls = None if single else Controls(sim, halo, endpoint, frames.maker if frames is not None else None)
     every = scene.output.checkpoint_every if plan.checkpoint_every is None else plan.checkpoint_every
     root = plan.checkpoint_root if plan.checkpoint_root is not None else (
         plan.out / "checkpoints" if plan.out is not None else None)
     saved = Checkpoints(peer, root, every)
+    controls = Controls(sim, halo, endpoint, frames.maker if frames is not None else None, rank, world,
+                        checkpoint=saved.save if root is not None else None,
+                        keep_block=None if single else (lambda: take_block(sim, halo.dec, rank)), stop=plan.stop,
+                        on_set=lambda key, value: live_change(key, value),
+                        on_hold=lambda held: progress("paused" if held else "running"))
     if plan.out is not None:  # before the first step: a run that cannot keep its result does not start
         prepare_output(plan.out)
         write_summary(plan.out / "summary.json", progress_summary(sim, scene, world, peer.t_start, "running"))
@@ -256,6 +261,28 @@ def drive(peer: PeerRun, plan: RunPlan, frames: FrameSink | None = None):
     if scene.output.vtk_every:
         from sphcore.vtk import VtkWriter  # VTK is loaded only by runs that write it
         vtk = VtkWriter(root.parent, scene, rank, world)
+
+    def progress(status: str):
+        """Rank 0 rewrites summary.json while the run goes on: where it is, what was applied."""
+        if plan.out is not None:
+            write_summary(plan.out / "summary.json", dict(progress_summary(sim, scene, world, peer.t_start, status),
+                                                          controls=[list(c) for c in controls.applied]))
+        last_summary[0] = time.perf_counter()
+
+    def live_change(key, value):
+        """A key changed during the run (control ``set``) that the driver itself reads: how often it
+        writes checkpoints and VTK files, and how often and by what the peers balance."""
+        nonlocal every, vtk
+        if key == "output.checkpoint_every":
+            every = saved.record["every"] = value
+        elif key == "output.vtk_every" and root is not None:
+            if vtk is None and value:
+                from sphcore.vtk import VtkWriter
+                vtk = VtkWriter(root.parent, sim.scene, rank, world)
+            if vtk is not None:
+                vtk.every = value
+        elif key in ("decomposition.balance_every", "decomposition.balance_by") and not single:
+            setattr(halo, key.split(".")[1], value)
 
     def block_box():
         if single:
@@ -267,9 +294,8 @@ def drive(peer: PeerRun, plan: RunPlan, frames: FrameSink | None = None):
     def on_step(seconds):
         if recorder is not None:
             recorder(seconds)
-        if controls is not None:
-            yield from controls.after_step()
-        if every and sim.step_index % every == 0:
+        yield from controls.after_step()
+        if every and sim.step_index % every == 0 and controls.checkpointed != sim.step_index:
             yield from saved.save()
         if plan.report is not None:
             plan.report(sim.step_index)
@@ -277,9 +303,8 @@ def drive(peer: PeerRun, plan: RunPlan, frames: FrameSink | None = None):
             vtk.write(sim, block_box())
         if frames is not None:
             frames.show(sim)
-        if plan.out is not None and time.perf_counter() - last_summary[0] >= plan.summary_every_s:
-            write_summary(plan.out / "summary.json", progress_summary(sim, scene, world, peer.t_start, "running"))
-            last_summary[0] = time.perf_counter()
+        if time.perf_counter() - last_summary[0] >= plan.summary_every_s:
+            progress("running")
 
     try:
         loop = yield from advance(sim, halo, scene, plan.steps, plan.until, plan.progress and rank == 0,
@@ -287,11 +312,11 @@ def drive(peer: PeerRun, plan: RunPlan, frames: FrameSink | None = None):
     finally:
         if frames is not None:
             frames.close()
+    controls.finish()
     if single:
         arrays = sim.final_arrays()
         summary = make_summary(sim, scene, loop, peer.t_setup, time.perf_counter() - peer.t_start)
     else:
-        controls.finish()
         gathered = yield from _gather(peer, recorder, controls, loop)
         if gathered is None:  # not rank 0: rank 0 has written the outputs and said "bye"
             return None
@@ -299,7 +324,8 @@ def drive(peer: PeerRun, plan: RunPlan, frames: FrameSink | None = None):
         summary = make_summary(sim, scene, loop, peer.t_setup, time.perf_counter() - peer.t_start)
         summary.update(peer_summary(peers, summary, world, sim.dtype.itemsize))
     step = sim.step_index
-    if every:
+    summary["controls"] = [list(c) for c in controls.applied]  # [step, command] (every peer applied the same)
+    if every or saved.record["written"] or saved.record["failed"]:
         summary["checkpoints"] = saved.record
     if plan.restarts is not None:
         summary["restarts"] = plan.restarts
@@ -350,7 +376,7 @@ class Checkpoints:
         if not failed:
             try:
                 checkpoint.commit(self.root, step, checkpoint.sim_info(sim), resolved_scene(scene, sim), parts,
-                                  scene.output.checkpoint_keep)
+                                  sim.scene.output.checkpoint_keep)  # as the run has it now
             except checkpoint.CheckpointWriteError as e:
                 failed = [f"{who}{e}"]
         if failed:
@@ -427,6 +453,46 @@ def run_peer(scene: Scene, rank: int, world: int, endpoint: Endpoint, plan: RunP
         sink = PublishFrames(FrameMaker(scene, domain_box(scene), rank, world, sim.n_particles), endpoint)
     peer = PeerRun(sim, scene, halo, endpoint, rank, world, dec, t_start, t_setup)
     return run_blocking(drive(peer, plan, sink))
+
+
+def listen_for_control(out: Path, secure: bool = True):
+    """The control channel of a single-process run (``sph run --control``): this process as peer 0
+    of 1 on a Zenoh endpoint listening on a free loopback port, with the run's credentials in
+    OUT/tls (as a multi-peer run makes them: ``sph control OUT CMD`` uses the controller's) and
+    OUT/run.json saying where; ``secure`` False: plain TCP (``--insecure``). Returns the endpoint
+    (close it after the run). OutputError if OUT cannot be written, TransportError if Zenoh cannot
+    listen there."""
+    import shutil
+    import socket
+    import uuid
+
+    from nodes import security
+    from nodes.zenoh_transport import ZenohEndpoint
+    out = Path(out)
+    prepare_output(out)
+    run_id = uuid.uuid4().hex[:12]
+    trust, folder = None, None
+    if secure:
+        folder = out / "tls"
+        if folder.exists():
+            shutil.rmtree(folder)
+        ids = security.make_run_credentials(folder, [["127.0.0.1"]])
+        trust = security.Trust(ids[security.peer_name(0)], run_id, 1)
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    where = f"{'tls' if secure else 'tcp'}/127.0.0.1:{port}"
+    try:
+        endpoint = ZenohEndpoint(run_id, 0, 1, [where], [], trust=trust)
+    except Exception as e:  # zenoh raises its own ZError for an endpoint it cannot open
+        raise TransportError(f"cannot listen for sph control at {where}: {e}") from None
+    info = {"run_id": run_id, "world": 1, "endpoints": [where],
+            "tls": str(folder.resolve()) if folder is not None else None, "launcher_pid": os.getpid()}
+    tmp = out / ".run.json.tmp"
+    tmp.write_text(json.dumps(info, indent=1) + "\n")
+    os.replace(tmp, out / "run.json")
+    log.info("run %s: listening for sph control %s COMMAND at %s", run_id, out, where)
+    return endpoint
 
 
 def checkpoint_record(every: int) -> dict:

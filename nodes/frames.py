@@ -4,6 +4,12 @@ a framelet (sphcore.render) with a few statistics, for the viewer (nodes/viewer.
 ``FrameMaker`` is the part shared by a peer process (which publishes over Zenoh, only while a
 viewer listens) and a single-process run (which hands frames straight to an in-process Viewer).
 Rendering is timed as the stage ``render``, so its cost shows in summary.json beside the physics.
+
+The 3D point cloud is on by default: ``render.points_every = k > 0`` sends every k-th particle (by id);
+0 picks k so that all peers together send about ``POINT_BUDGET`` points (the cloud stays cheap to
+send, record and draw whatever the particle count). The points carry the colours of the composite.
+A frame's statistics also name the camera and the colouring in use, so that the viewer follows
+``sph control camera NAME`` and ``color_by`` (outline, point of view, legend).
 """
 from __future__ import annotations
 
@@ -13,12 +19,21 @@ import numpy as np
 
 from sphcore.render import SceneRenderer
 
+POINT_BUDGET = 3000  # points of the 3D cloud per frame, all peers together, when render.points_every = 0
+
+
+def points_stride(points_every: int, particles_total: int) -> int:
+    """Every how many particles (by id) one goes into the 3D point cloud."""
+    if points_every > 0:
+        return points_every
+    return max(1, -(-particles_total // POINT_BUDGET))
+
 
 class FrameMaker:
     def __init__(self, scene, box, rank: int, world: int, particles_total: int):
         self.renderer = SceneRenderer(scene, *box, world)
         self.every = scene.render.every
-        self.points_every = scene.render.points_every
+        self.points_every = points_stride(scene.render.points_every, particles_total)
         self.rank, self.world, self.particles_total = rank, world, particles_total
         self._seen = {}  # stage -> samples already summarised
         self.controls = []  # control commands applied since the last frame (logged by the viewer)
@@ -27,14 +42,15 @@ class FrameMaker:
         return self.every > 0 and sim.step_index % self.every == 0
 
     def make(self, sim, bytes_sent: int = 0):
-        """(framelet, stats, points) of this peer's owned particles now."""
+        """(framelet, stats, points) of this peer's owned particles now; points: (positions (k, 3),
+        colours (k, 3) uint8) of every points_every-th particle."""
         s = sim.state
         n = s.n_owned
         with sim.timers("render"):
             frame = self.renderer.framelet(self.rank, s.x[:n], s.v[:n], s.rho[:n], s.p[:n], s.id[:n])
-            points = None
-            if self.points_every:
-                points = s.x[:n][s.id[:n] % self.points_every == 0]
+            pick = np.nonzero(s.id[:n] % self.points_every == 0)[0]
+            points = (s.x[pick], np.ascontiguousarray(self.renderer.base_colours(self.rank, s.v[pick], s.rho[pick],
+                                                                                 s.p[pick]), dtype=np.uint8))
         stage_ms = {}
         for name, samples in sim.timers.samples.items():
             first = self._seen.get(name, 0)
@@ -47,7 +63,8 @@ class FrameMaker:
         stats = {"step": sim.step_index, "sim_time": sim.t, "world": self.world, "particles": n,
                  "particles_total": self.particles_total, "stage_ms": stage_ms, "bytes_sent": int(bytes_sent),
                  "kinetic_energy": sim.kinetic_energy(), "max_density_deviation": dev, "wall_time": time.time(),
-                 "controls": self.controls}
+                 "controls": self.controls, "camera": self.renderer.camera_name,
+                 "color_by": self.renderer.quantity, "range": [float(v) for v in self.renderer.range]}
         self.controls = []
         return frame, stats, points
 

@@ -22,7 +22,7 @@ from nodes import control
 from nodes.endpoint import PeerTimeout
 from sphcore import checkpoint
 from sphcore.decomposition import Decomposition, choose_dims
-from sphcore.halo import Reject, expect_arrays
+from sphcore.halo import MAX_CONTROL_BYTES, Reject, decode_commands, encode_commands, expect_arrays
 from sphcore.solver import Simulation
 
 log = logging.getLogger("sph.peer")
@@ -74,34 +74,56 @@ class PeerRecorder:
 
 
 class Controls:
-    """Control commands (nodes/control.py) on a peer.
+    """Control commands (nodes/control.py) on a peer, or in a single process (peer 0 of 1).
 
     Rank 0 takes what its endpoint received on the controller's key, validates each command against
-    the scene and answers on the ack key: rejected with the reason, or accepted at step N, the step
-    after which every peer applies it. Accepted commands go out in the step's reduction
-    (``PeerHalo.control_source``); the other peers check what they are announced
-    (``PeerHalo.control_check``: an announcement that is not a valid command is dropped like any
-    forged message). After the step every peer applies the announced commands. ``pause`` holds
-    every peer after that step until rank 0 gets ``resume``; it is acknowledged like any command,
-    so whoever paused a run is told so, and a pause while paused or a resume while running is
-    rejected with the reason."""
+    the scene (as the commands before it leave it) and answers on the ack key: rejected with the
+    reason, or accepted at step N, the step after which every peer applies it. With several peers,
+    accepted commands go out in the step's reduction (``PeerHalo.control_source``); the other peers
+    check what they are announced (``PeerHalo.control_check``: an announcement that is not a valid
+    command is dropped like any forged message), and after the step every peer applies them. A
+    single process takes and applies them after each step.
 
-    def __init__(self, sim, halo, endpoint, maker):
+    ``pause`` holds every peer after that step until rank 0 gets ``resume`` or ``step N`` (which
+    resumes and holds again N steps later: rank 0 announces that pause itself). While the run is
+    held, rank 0 goes on answering: every other command (set, reset, checkpoint, camera, color_by)
+    is applied at once, on every peer, at the held step (rank 0 sends what it accepted since its
+    last poll to the others in one "hold<i>" message; the last one says resume). Every command is
+    acknowledged, so whoever paused a run is told so; a pause while paused or a resume while running
+    is rejected with the reason.
+    What was applied is ``applied`` [(step, description)] (summary.json) and logged."""
+
+    def __init__(self, sim, halo, endpoint, maker, rank: int = 0, world: int = 1, checkpoint=None, keep_block=None,
+                 stop=None, on_set=None, on_hold=None):
+        """``checkpoint``: a generator function writing this peer's checkpoint of the current step
+        (None: the run writes none, and the command is rejected); ``keep_block``: after a reset,
+        keep only this peer's particles (None: a single process keeps them all); ``stop()``: the
+        signal asking the run to end, or None (a held single process then goes on, to stop);
+        ``on_set(key, value)``: after a ``set``, for the keys the run driver reads itself (how often
+        it checkpoints, writes VTK files, balances); ``on_hold(held)``: when the run is held and when it
+        goes on (rank 0 marks summary.json "paused")."""
         self.sim, self.halo, self.endpoint, self.maker = sim, halo, endpoint, maker
-        self.applied = []      # (step, description), for the summary
-        self._held = []        # rank 0: commands accepted during a pause, announced in the next step
-        self._paused_at = None  # rank 0: the step after which the run is held
+        self.rank, self.world = rank, world
+        self.checkpoint, self.keep_block, self.stop, self.on_set = checkpoint, keep_block, stop, on_set
+        self.on_hold = on_hold
+        self.applied = []        # (step, description), for the summary
+        self.checkpointed = None  # the step of the last checkpoint a command wrote (the run's own is then skipped)
+        self._leftover = []      # rank 0: commands that arrived with a resume, validated as in a running run
+        self._paused_at = None   # rank 0: the step after which the run is held
+        self._pause_after = None  # rank 0: step N's pause: hold after this step
         self.cameras = ["default"] + [c.name for c in sim.scene.render.cameras]
-        if halo.rank == 0:
+        self.others = [q for q in range(world) if q != rank]
+        if world > 1 and rank == 0:
             halo.control_source = self._announce
-        else:
+        elif world > 1:
             halo.control_check = self._check_announced
 
-    def _accept(self, entry: dict, step: int) -> dict | None:
-        """A received command ({"id", "text"}) parsed and validated, or None after acknowledging
-        its rejection (``step``: the step the run is at, for the ack)."""
+    def _validate(self, entry: dict, scene, step: int):
+        """(command, the scene after it) of a received command ({"id", "text"}), or None after
+        acknowledging its rejection (``step``: the step the run is at, for the ack)."""
         try:
-            cmd = control.validate(self.sim.scene, control.parse(entry["text"]), self.cameras)
+            cmd, after = control.validate(scene, control.parse(entry["text"]), self.cameras, self.sim,
+                                          self.checkpoint is not None)
             if cmd["op"] == "resume" and self._paused_at is None:
                 raise ValueError("resume: the run is not paused")
             if cmd["op"] == "pause" and self._paused_at is not None:
@@ -109,92 +131,178 @@ class Controls:
         except ValueError as e:
             self._reject(entry, step, str(e))
             return None
-        return cmd
+        return cmd, after
 
     def _reject(self, entry: dict, step: int, reason: str):
         log.warning("peer 0: rejected control command %r: %s", entry["text"][:80], reason)
         self.endpoint.send_ack(entry["id"], "rejected", step, reason)
 
-    def _announce(self) -> list:
-        """Rank 0, in the step's reduction: the commands to announce now, those held during a pause
-        first; each new one is acknowledged as accepted at the step after which it is applied."""
-        step = self.sim.step_index
-        out, self._held = self._held, []
-        for entry in self.endpoint.take_commands():
-            cmd = self._accept(entry, step)
-            if cmd is None:
+    def _accept(self, entry: dict, cmd: dict, step: int):
+        self.endpoint.send_ack(entry["id"], "accepted", step)
+        log.info("peer 0: accepted control command %r for step %d", control.describe(cmd), step)
+
+    def _batch(self, step: int) -> list:
+        """Rank 0, running: the commands to apply after ``step`` (the step in progress, with several
+        peers; the step just done, in one process), each answered; step N schedules its pause."""
+        out, scene = [], self.sim.scene
+        entries, self._leftover = self._leftover + self.endpoint.take_commands(), []
+        for entry in entries:
+            checked = self._validate(entry, scene, step)
+            if checked is None:
                 continue
-            if cmd["op"] == "pause" and any(c["op"] == "pause" for c in out):
-                self._reject(entry, step, f"pause: a pause is already announced for step {step + 1}")
+            cmd, scene = checked
+            if cmd["op"] == "pause" and (self._pause_after == step or any(c["op"] == "pause" for c in out)):
+                self._reject(entry, step, f"pause: a pause is already announced for step {step}")
+                continue
+            if cmd["op"] == "step":
+                self._pause_after = step + cmd["count"]
+                self._accept(entry, cmd, self._pause_after)
                 continue
             out.append(cmd)
-            self.endpoint.send_ack(entry["id"], "accepted", step + 1)
-            log.info("peer 0: accepted control command %r for step %d", control.describe(cmd), step + 1)
+            self._accept(entry, cmd, step)
+        if self._pause_after == step:
+            self._pause_after = None
+            if not any(c["op"] == "pause" for c in out):
+                out.append({"op": "pause"})
         return out
+
+    def _announce(self) -> list:
+        """Rank 0, in the step's reduction (several peers): the commands to announce now."""
+        return self._batch(self.sim.step_index + 1)
 
     def _check_announced(self, commands):
         try:
-            control.check_announced(self.sim.scene, commands, self.cameras)
+            control.check_announced(self.sim.scene, commands, self.cameras, self.sim)
         except ValueError as e:
             raise Reject("control", str(e)) from None
 
     def after_step(self):
-        """Generator: apply the commands announced in this step's reduction (a pause waits here)."""
-        commands, self.halo.announced = self.halo.announced, []
+        """Generator: apply the commands announced in this step's reduction (one process: received
+        since the last step); a pause waits here."""
+        if self.world == 1:
+            commands = self._batch(self.sim.step_index)
+        else:
+            commands, self.halo.announced = self.halo.announced, []
         for cmd in commands:
-            step = self.sim.step_index
-            log.info("peer %d: step %d: %s", self.halo.rank, step, control.describe(cmd))
-            self.applied.append((step, control.describe(cmd)))
-            if self.maker is not None:
-                self.maker.controls.append(control.describe(cmd))
-            if cmd["op"] == "set":
-                value = cmd["value"]
-                self.sim.set_parameter(cmd["key"], tuple(value) if isinstance(value, list) else value)
-            elif cmd["op"] == "camera" and self.maker is not None:
-                self.maker.renderer.camera_name = cmd["name"]
-            elif cmd["op"] == "color_by" and self.maker is not None:
-                self.maker.renderer.set_quantity(cmd["quantity"])
-            elif cmd["op"] == "pause":
-                yield from self._paused()
+            yield from self._apply(cmd)
+
+    def _apply(self, cmd: dict):
+        """Generator: apply one validated command on this peer."""
+        step = self.sim.step_index
+        text = control.describe(cmd)
+        log.info("peer %d: step %d: %s", self.rank, step, text)
+        self.applied.append((step, text))
+        if self.maker is not None:
+            self.maker.controls.append(text)
+        op = cmd["op"]
+        if op == "set":
+            value = cmd["value"]
+            value = tuple(value) if isinstance(value, list) else value
+            try:
+                self.sim.set_parameter(cmd["key"], value)
+            except ValueError as e:  # validated before: only a combination could fail, alike on every peer
+                log.error("peer %d: step %d: %s not applied: %s", self.rank, step, text, e)
+            else:
+                if self.on_set is not None:
+                    self.on_set(cmd["key"], value)
+        elif op == "camera" and self.maker is not None:
+            self.maker.renderer.camera_name = cmd["name"]
+        elif op == "color_by" and self.maker is not None:
+            self.maker.renderer.set_quantity(cmd["quantity"])
+        elif op == "reset":
+            self.sim.reset()
+            if self.keep_block is not None:
+                self.keep_block()
+        elif op == "checkpoint" and self.checkpoint is not None:
+            yield from self.checkpoint()
+            self.checkpointed = step
+        elif op == "pause":
+            yield from self._paused()
+
+    def _release(self, step: int, index: int, commands: list, resume: bool):
+        """Rank 0, held: send the other peers what to apply now (and whether to go on)."""
+        for q in self.others:
+            self.endpoint.send(q, (step, f"hold{index}"), {"control": encode_commands(commands),
+                                                           "resume": np.array([int(resume)], dtype=np.uint8)})
 
     def _paused(self):
-        """Generator: hold until resume; rank 0 answers the commands that arrive meanwhile (the
-        others are announced in the next step), then releases the other peers."""
+        """Generator: hold until resume (or step N); rank 0 answers the commands that arrive
+        meanwhile and applies them at once on every peer."""
         step = self.sim.step_index
-        if self.halo.rank == 0:
+        index = 0
+        if self.on_hold is not None:
+            self.on_hold(True)
+        if self.rank == 0:
             self._paused_at = step
             while self._paused_at is not None:
                 self.endpoint.check()
-                for entry in self.endpoint.take_commands():
-                    cmd = self._accept(entry, step)
-                    if cmd is None:
+                batch, scene, entries = [], self.sim.scene, self.endpoint.take_commands()
+                while entries:  # what came in since the last poll, validated in order, goes out as one message
+                    entry = entries.pop(0)
+                    checked = self._validate(entry, scene, step)
+                    if checked is None:
                         continue
-                    if cmd["op"] == "resume":
-                        self._paused_at = None  # what follows in this batch is validated as in a running run
-                        self.endpoint.send_ack(entry["id"], "accepted", step)
-                    else:
-                        self._held.append(cmd)
-                        self.endpoint.send_ack(entry["id"], "accepted", step + 1)
+                    cmd, scene = checked
+                    if cmd["op"] in ("resume", "step"):
+                        self._paused_at = None
+                        self._pause_after = step + cmd["count"] if cmd["op"] == "step" else None
+                        self._accept(entry, cmd, self._pause_after if cmd["op"] == "step" else step)
+                        self._leftover = entries  # validated as in a running run, at the next step
+                        break
+                    batch.append(cmd)
+                    self._accept(entry, cmd, step)
+                if self._paused_at is not None and self.stop is not None and self.stop() is not None:
+                    log.warning("peer 0: %s while paused after step %d: going on, to stop", self.stop(), step)
+                    self._paused_at = None
+                if batch or self._paused_at is None:
+                    self._release(step, index, batch, resume=self._paused_at is None)
+                    index += 1
+                for cmd in batch:
+                    yield from self._apply(cmd)
                 if self._paused_at is not None:
                     yield from self.endpoint.idle(0.05)
-            for q in self.halo.others:
-                self.endpoint.send(q, (step, "resume"), {})
         else:
             while True:
                 try:
-                    yield from self.endpoint.recv(0, (step, "resume"), _empty_check)
-                    break
+                    msg = yield from self.endpoint.recv(0, (step, f"hold{index}"), self._hold_check)
                 except PeerTimeout:
                     continue  # paused as long as rank 0 says; a lost peer still raises PeerLost
-        log.info("peer %d: resumed after step %d", self.halo.rank, step)
+                index += 1
+                for cmd in msg["commands"]:
+                    yield from self._apply(cmd)
+                if msg["resume"]:
+                    break
+        if self.on_hold is not None:
+            self.on_hold(False)
+        log.info("peer %d: resumed after step %d", self.rank, step)
+
+    def _hold_check(self, msg: dict):
+        """What rank 0 sends while the run is held: {"control": commands as JSON bytes, "resume": one
+        byte 0 or 1}, the commands valid ones (never a pause: the run is held already). The decoded
+        commands and the flag are left in ``msg`` ("commands", "resume")."""
+        if set(msg) != {"control", "resume"}:
+            raise Reject("arrays", f"held commands: arrays {sorted(msg)[:8]}, expected control, resume")
+        control_bytes, resume = msg["control"], msg["resume"]
+        if control_bytes.dtype != np.uint8 or control_bytes.ndim != 1 or len(control_bytes) > MAX_CONTROL_BYTES:
+            raise Reject("control", "held commands: not at most 64 kB of JSON bytes")
+        if resume.dtype != np.uint8 or resume.shape != (1,) or int(resume[0]) not in (0, 1):
+            raise Reject("control", "held commands: resume is not one byte 0 or 1")
+        try:
+            commands = decode_commands(control_bytes)
+            control.check_announced(self.sim.scene, commands, self.cameras, self.sim,
+                                    ops=tuple(op for op in control.ANNOUNCED if op != "pause"))
+        except (ValueError, RecursionError) as e:
+            raise Reject("control", f"held commands: {str(e)[:200]}") from None
+        msg["commands"], msg["resume"] = commands, bool(resume[0])
 
     def finish(self):
         """Rank 0 at the end of the run: commands that came too late are rejected, not left unanswered."""
-        if self.halo.rank != 0:
+        if self.rank != 0:
             return
         step = self.sim.step_index
-        for entry in self.endpoint.take_commands():
+        for entry in self._leftover + self.endpoint.take_commands():
             self._reject(entry, step, f"the run ended at step {step}")
+        self._leftover = []
 
 
 HEADROOM = 1 << 20            # bytes: headers, control commands, checkpoint entries, a peer's statistics

@@ -1,7 +1,7 @@
 """Reading a Rerun recording (.rrd) back: which entities it holds at which steps, and the images.
 
-Used by the tests (a recorded run holds every entity for every rendered step) and by
-scripts/screenshots.py (PNG of a composited frame from a recording).
+Used by the tests (a recorded run holds every entity for every rendered step, its blueprint shows
+the composite's RGB) and by scripts/screenshots.py (PNG of a composited frame from a recording).
 """
 from __future__ import annotations
 
@@ -21,20 +21,84 @@ def entity_steps(path: Path) -> dict[str, list]:
     return {k: sorted(v) for k, v in out.items()}
 
 
+def _first(value):
+    """The one value of a one-element list (Rerun's columns hold a list per row), else the value."""
+    return value[0] if isinstance(value, list) and len(value) == 1 else value
+
+
 def images(path: Path, entity: str = "/composite/rgb") -> dict[int, np.ndarray]:
-    """{step: (H, W, 3) uint8} of an RGB image entity."""
+    """{step: (H, W, 3) uint8} of an RGB image entity (raw, or encoded as JPEG / PNG)."""
+    return {step: image for step, image in _image_rows(path, entity, "Image", "EncodedImage")}
+
+
+def depth_images(path: Path, entity: str = "/composite/depth") -> dict[int, np.ndarray]:
+    """{step: (H, W) float32 depth in m, 0 where empty} of a depth image entity (16-bit PNG + meter)."""
+    return {step: image for step, image in _image_rows(path, entity, "DepthImage", "EncodedDepthImage")}
+
+
+def _image_rows(path: Path, entity: str, raw: str, encoded: str):
+    import io
+
+    from PIL import Image
     from rerun.chunk import RrdReader
-    out = {}
     for chunk in RrdReader(str(path)).stream():
         if chunk.entity_path != entity:
             continue
         batch = chunk.to_record_batch()
-        for step, buf, fmt in zip(batch.column("step").to_pylist(), batch.column("Image:buffer").to_pylist(),
-                                  batch.column("Image:format").to_pylist()):
-            f = fmt[0] if isinstance(fmt, list) else fmt
-            data = buf[0] if buf and isinstance(buf[0], list) else buf
-            out[step] = np.asarray(data, dtype=np.uint8).reshape(f["height"], f["width"], 3)
-    return out
+        names = batch.schema.names
+        steps = batch.column("step").to_pylist()
+        if f"{raw}:buffer" in names:
+            for step, buf, fmt in zip(steps, batch.column(f"{raw}:buffer").to_pylist(),
+                                      batch.column(f"{raw}:format").to_pylist()):
+                f = _first(fmt)
+                data = np.asarray(_first(buf), dtype=np.uint8)
+                if raw == "Image":
+                    yield step, data.reshape(f["height"], f["width"], 3)
+                else:
+                    yield step, data.view(np.float32).reshape(f["height"], f["width"])
+        elif f"{encoded}:blob" in names:
+            meters = batch.column(f"{encoded}:meter").to_pylist() if f"{encoded}:meter" in names else [None] * len(steps)
+            for step, blob, meter in zip(steps, batch.column(f"{encoded}:blob").to_pylist(), meters):
+                data = _first(blob)
+                picture = np.asarray(Image.open(io.BytesIO(bytes(data))))
+                if raw == "Image":
+                    yield step, picture[..., :3] if picture.ndim == 3 else np.repeat(picture[..., None], 3, axis=2)
+                else:
+                    m = _first(meter)
+                    m = m[0] if isinstance(m, list) else m
+                    yield step, (picture.astype(np.float32) / np.float32(m or 1.0))
+
+
+def blueprint(path: Path) -> dict:
+    """The recording's (first) blueprint: {"views": [{"kind", "name", "origin", "hidden": [entity, ...],
+    "contents": [query, ...]}], "containers": [{"kind", "shares"}]} (views in no particular order)."""
+    from rerun.chunk import RrdReader
+    reader = RrdReader(str(path))
+    stores = reader.blueprints()
+    if not stores:
+        return {"views": [], "containers": []}
+    views, containers = {}, []
+    for chunk in reader.stream(store=stores[0]):
+        batch = chunk.to_record_batch()
+        row = {n: batch.column(n).to_pylist()[-1] for n in batch.schema.names
+               if ":" in n and not n.startswith("rerun.controls")}
+        parts = chunk.entity_path.strip("/").split("/")
+        if parts[0] == "view" and len(parts) == 2:
+            v = views.setdefault(parts[1], {"hidden": [], "contents": []})
+            v.update(kind=_first(row.get("ViewBlueprint:class_identifier")),
+                     name=_first(row.get("ViewBlueprint:display_name")),
+                     origin=_first(row.get("ViewBlueprint:space_origin")))
+        elif parts[0] == "view" and parts[2:3] == ["ViewContents"]:
+            v = views.setdefault(parts[1], {"hidden": [], "contents": []})
+            if len(parts) == 3:
+                v["contents"] = row.get("ViewContents:query") or []
+            elif parts[3] == "overrides" and row.get("EntityBehavior:visible") in ([False], False):
+                v["hidden"].append("/" + "/".join(parts[4:-1]))
+        elif parts[0] == "container":
+            containers.append({"kind": _first(row.get("ContainerBlueprint:container_kind")),
+                               "shares": row.get("ContainerBlueprint:col_shares") or row.get(
+                                   "ContainerBlueprint:row_shares")})
+    return {"views": list(views.values()), "containers": containers}
 
 
 def text_logs(path: Path, entity: str) -> list[str]:

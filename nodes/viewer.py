@@ -7,22 +7,47 @@ with ``CongestionControl.DROP`` and only while a viewer is subscribed; a frame w
 not all arrive within ``frame_timeout`` seconds (or before a later frame completes) is composited
 from what arrived and marked (``composite/status``).
 
+The viewer never waits for Rerun either. Complete frames go into a short queue that one writer
+thread composites, encodes and logs; when the queue is full (Rerun's channel to a slow live viewer
+blocks the writer, or compositing cannot keep up) the oldest waiting frame is dropped and counted
+(``stats/dropped_frames``, summary.json's viewer section), so what is shown stays close to the
+simulation instead of falling ever further behind. The control commands a dropped frame carried
+are logged with the next frame. Images are compressed: the composite's RGB as JPEG (quality
+``RGB_QUALITY``), each peer's framelet as JPEG (``PEER_QUALITY``), the depth as a 16-bit PNG
+(lossless, depth quantised to 1/60000 of the frame's farthest sample).
+
+A blueprint (``blueprint()``) is sent first: the composite large with its RGB visible and its depth
+hidden (one click shows it), a navigable 3D view (domain, container, obstacles and meshes, the point
+cloud coloured like the composite), a legend of the colour map and its range, the scene's info, an
+event log, and the statistics in a few plots.
+
 Rerun entities (timelines ``step`` and ``sim_time``):
 
-    composite/rgb, composite/depth          the composited image and its depth (m along the view axis)
+    composite/rgb, composite/depth          the composited image (JPEG) and its depth (16-bit PNG, meter)
     composite/peers                         each peer's framelet rectangle, labelled by rank
+    composite/legend, composite/legend_label    the colour bar under the image, labelled with the range
     composite/status                        a text log line for every incomplete frame
-    peers/<rank>/rgb                        each peer's framelet
-    fluid/points                            every k-th particle, coloured by peer (render.points_every)
-    stats/...                               per-peer particles, stage milliseconds, bytes sent; kinetic
-                                            energy, max density deviation, frames/s, composite latency
-    domain (static)                         the domain box
-    info (static)                           the scene's physical parameters and the number of peers
+    peers/<rank>/rgb                        each peer's framelet (JPEG)
+    fluid/points                            the 3D point cloud (render.points_every; 0 = a point budget)
+    camera                                  the camera the frames are rendered with (pinhole + pose)
+    control                                 the control commands applied (sph control)
+    events                                  camera and colour switches, dropped frames
+    stats/...                               per-peer particles (and imbalance), stage milliseconds, bytes
+                                            sent; kinetic energy, max density deviation, frames/s,
+                                            composite latency, dropped frames
+    domain, container, obstacles/<i> (static)   the domain box and the walls as meshes
+    info, legend                            the scene's physical parameters (updated after control set),
+                                            the colouring and its range
 """
 from __future__ import annotations
 
+import ast
+import dataclasses
+import io
 import json
 import logging
+import queue
+import re
 import threading
 import time
 from pathlib import Path
@@ -31,11 +56,18 @@ import numpy as np
 
 from nodes import wire
 from nodes.rerun_sinks import sinks_for
+from nodes.walls_view import merge_layer, obstacle_layer, wall_meshes
 from nodes.zenoh_transport import zenoh_config
 from sphcore.output import write_summary
-from sphcore.render import RANK_COLOURS, Framelet, SceneRenderer
+from sphcore.render import LUT, RANK_COLOURS, Framelet, SceneRenderer, composite, draw_box
 
 log = logging.getLogger("sph.viewer")
+
+RGB_QUALITY = 90      # JPEG quality of the composite's RGB
+PEER_QUALITY = 75     # JPEG quality of each peer's framelet (a diagnostic view)
+DEPTH_STEPS = 60000   # the frame's farthest sample maps to this 16-bit value (0 = no sample)
+QUEUE_FRAMES = 3      # complete frames waiting for the writer; more and the oldest is dropped
+UNITS = {"speed": "m/s", "density": "kg/m³", "pressure": "Pa", "rank": ""}
 
 
 def open_recording(run_id: str, record: Path | None = None, spawn: bool = False, serve_web: bool = False,
@@ -53,113 +85,374 @@ def open_recording(run_id: str, record: Path | None = None, spawn: bool = False,
     return rec
 
 
-def info_text(scene, particles: int, world: int) -> str:
+def info_text(scene, particles: int, world: int, changes=()) -> str:
     s, t, f = scene.sph, scene.time, scene.forces
     visc = {"artificial": f"artificial, alpha = {s.alpha:g}", "none": "none"}.get(s.viscosity,
                                                                                  f"{s.viscosity}, nu = {s.nu:g} m²/s")
-    return "\n".join([
+    lines = [
         f"# {scene.scene.name}", "", scene.scene.description, "",
         f"- particles: {particles:,}  ·  peers: {world}  ·  spacing: {scene.particles.spacing:g} m",
         f"- kernel: {s.kernel}, support {s.support:g} spacings  ·  EOS: {s.eos}, c0 = {s.sound_speed:g} m/s",
         f"- rest density: {scene.fluid.rest_density:g} kg/m³  ·  viscosity: {visc}",
         f"- gravity: {list(f.gravity)} m/s²  ·  external: {list(f.external)} m/s²",
+        f"- boundary: friction {scene.boundary.friction:g}, restitution {scene.boundary.restitution:g}",
         f"- time: {t.integrator}, {t.mode} dt (max {t.dt:g} s, CFL {t.cfl:g})",
         f"- colour: {scene.render.color_by}",
-    ])
+    ]
+    if changes:
+        lines += ["", "## Changed during the run", ""] + [f"- step {step}: {text}" for step, text in changes]
+    return "\n".join(lines)
+
+
+def legend_text(quantity: str, lo: float, hi: float) -> str:
+    if quantity == "rank":
+        return "# Colour: peer rank\n\nEach peer's particles in its own colour (Tableau 10; peer 0 blue)."
+    unit = UNITS[quantity]
+    return (f"# Colour: {quantity}\n\nviridis from dark purple = {lo:.4g} {unit} to yellow = {hi:.4g} {unit} "
+            "(clamped outside; `render.range`, or `sph control color_by`)")
+
+
+def apply_setting(scene, text: str):
+    """The scene after a control line ``set KEY = VALUE`` (as nodes/control.py describes it), or
+    ``scene`` unchanged for any other line or a value that does not read back."""
+    m = re.fullmatch(r"set (\w+)\.(\w+) = (.+)", text)
+    if not m:
+        return scene
+    section, name, raw = m.groups()
+    try:
+        value = ast.literal_eval(raw)
+        part = dataclasses.replace(getattr(scene, section), **{name: tuple(value) if isinstance(value, list)
+                                                              else value})
+        return dataclasses.replace(scene, **{section: part})
+    except (ValueError, SyntaxError, TypeError, AttributeError):
+        return scene
+
+
+def encode_jpeg(rgb: np.ndarray, quality: int) -> bytes:
+    from PIL import Image
+    out = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(rgb)).save(out, "JPEG", quality=quality)
+    return out.getvalue()
+
+
+def encode_depth(depth: np.ndarray) -> tuple[bytes, float]:
+    """(16-bit PNG, meter: PNG units per metre) of a depth image (inf = no sample -> 0)."""
+    from PIL import Image
+    finite = np.isfinite(depth) & (depth > 0)
+    far = float(depth[finite].max()) if finite.any() else 1.0
+    meter = DEPTH_STEPS / far
+    values = np.where(finite, np.clip(np.rint(np.where(finite, depth, 0.0) * meter), 1, 65535), 0).astype(np.uint16)
+    out = io.BytesIO()
+    Image.fromarray(values).save(out, "PNG", compress_level=1)
+    return out.getvalue(), meter
+
+
+def camera_pose(camera):
+    """(translation, 3 x 3 rotation: camera axes right, down, forward in world) of a render Camera
+    (sphcore.render), in Rerun's RDF pinhole convention."""
+    eye, right, up, forward = camera.basis()
+    return eye, np.stack([right, -up, forward], axis=1)
+
+
+def blueprint(scene, world: int, camera=None):
+    """The layout sent at the start of a recording: composite large (RGB visible, depth hidden),
+    3D view, legend and info, event log, statistics grouped in a few plots."""
+    import rerun.blueprint as rrb
+    eye = None
+    if camera is not None and hasattr(rrb, "EyeControls3D"):
+        eye = rrb.EyeControls3D(position=list(camera.eye), look_target=list(camera.target),
+                                eye_up=list(camera.up))
+    view3d = rrb.Spatial3DView(name="3D (drag to orbit)", origin="/",
+                               contents=["/domain", "/container/**", "/obstacles/**", "/fluid/**", "/camera/**"],
+                               **({"eye_controls": eye} if eye is not None else {}))
+    plots = rrb.Tabs(
+        rrb.TimeSeriesView(name="Stage ms per peer", origin="/stats/stage_ms"),
+        rrb.TimeSeriesView(name="Particles per peer, imbalance", origin="/stats",
+                           contents=["/stats/particles/**", "/stats/imbalance"]),
+        rrb.TimeSeriesView(name="MB sent per peer", origin="/stats/bytes_sent_mb"),
+        rrb.TimeSeriesView(name="Kinetic energy", origin="/stats", contents=["/stats/kinetic_energy"]),
+        rrb.TimeSeriesView(name="Max density error", origin="/stats", contents=["/stats/max_density_deviation"]),
+        rrb.TimeSeriesView(name="Viewer: latency ms, frames/s, dropped", origin="/stats",
+                           contents=["/stats/composite_latency_ms", "/stats/fps", "/stats/dropped_frames"]),
+        name="Statistics")
+    composite = rrb.Spatial2DView(name="Composite", origin="/composite",
+                                  overrides={"/composite/depth": rrb.EntityBehavior(visible=False)})
+    events = rrb.TextLogView(name="Events", origin="/", contents=["/control", "/events", "/composite/status"])
+    notes = rrb.Tabs(rrb.TextDocumentView(name="Legend", origin="/legend"),
+                     rrb.TextDocumentView(name="Scene", origin="/info"), name="Legend and scene")
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(composite, rrb.Horizontal(events, notes), row_shares=[4, 1]),
+            rrb.Vertical(view3d, plots, row_shares=[1, 1]),
+            column_shares=[3, 2]),
+        collapse_panels=True)
 
 
 class Viewer:
-    """Composites frames of ``world`` peers and logs them to ``rec`` (a Rerun RecordingStream)."""
+    """Composites frames of ``world`` peers and logs them to ``rec`` (a Rerun RecordingStream).
+    ``announce``: where the recording size estimate goes (a line after the first frame)."""
 
-    def __init__(self, scene, box, rec, world: int = 1, particles: int = 0, frame_timeout: float = 2.0):
+    def __init__(self, scene, box, rec, world: int = 1, particles: int = 0, frame_timeout: float = 2.0,
+                 queue_frames: int = QUEUE_FRAMES, expected_frames: int | None = None, announce=None,
+                 record: Path | None = None):
         import rerun as rr
         self.rr, self.rec, self.scene = rr, rec, scene
-        self.world = world
+        self.world, self.particles = world, particles
         self.renderer = SceneRenderer(scene, *box, world)
         self.frame_timeout = frame_timeout
+        self.expected_frames, self.announce, self.record = expected_frames, announce, record
         self.pending = {}        # step -> {"parts": {rank: (framelet, stats, points)}, "since": time}
-        self.frames = 0
+        self.frames = 0          # frames logged
         self.incomplete = 0
-        self.latency_ms = []
+        self.dropped = 0         # complete frames dropped because the writer was behind
+        self.latency_ms = []     # per logged frame: newest framelet's publication -> logged
+        self.frame_bytes = []    # per logged frame: bytes of its encoded images and points
+        self.changes = []        # (step, control text) of the settings changed
         self._last_emit = None
+        self._carried = []       # control lines of dropped frames, logged with the next frame
+        self._layers = {}        # camera name -> the obstacles' (rgb, depth) seen from it (walls_view.py)
         self._lock = threading.Lock()
+        self._queue = queue.Queue(maxsize=max(1, queue_frames))
         lo, hi = self.renderer.box
+        rec.send_blueprint(blueprint(scene, world, self.renderer.camera))
         rec.log("domain", rr.Boxes3D(mins=[lo], sizes=[hi - lo], colors=[[200, 200, 200]]), static=True)
-        rec.log("info", rr.TextDocument(info_text(scene, particles, world), media_type=rr.MediaType.MARKDOWN),
-                static=True)
+        try:
+            for name, mesh in wall_meshes(scene).items():
+                rec.log(name, mesh, static=True)
+        except (ImportError, OSError, ValueError) as e:  # a mesh that cannot be read: the run says so itself
+            log.warning("viewer: walls not drawn in 3D: %s", e)
+        self._log_info()
+        self._log_legend()
+        self._log_camera()
+        self._writer = threading.Thread(target=self._write_loop, name="sph-viewer-writer", daemon=True)
+        self._writer.start()
 
+    # -- the producer side (a Zenoh callback, the simulation's thread): never waits for Rerun --------
     def add(self, step: int, rank: int, frame: Framelet, stats: dict, points=None):
-        """One peer's framelet of ``step``; composites when all peers' framelets are in."""
+        """One peer's framelet of ``step``; queues the frame for logging when all peers' are in."""
         with self._lock:
             entry = self.pending.setdefault(step, {"parts": {}, "since": time.perf_counter()})
             entry["parts"][rank] = (frame, stats, points)
             if len(entry["parts"]) == self.world:
                 for older in sorted(s for s in self.pending if s < step):  # a later frame is complete
-                    self._emit(older)
-                self._emit(step)
+                    self._submit(older)
+                self._submit(step)
 
     def expire(self, now: float | None = None):
-        """Composite frames that waited longer than frame_timeout (marked incomplete)."""
+        """Queue frames that waited longer than frame_timeout (marked incomplete)."""
         now = time.perf_counter() if now is None else now
         with self._lock:
             for step in sorted(self.pending):
                 if now - self.pending[step]["since"] > self.frame_timeout:
-                    self._emit(step)
+                    self._submit(step)
 
-    def flush(self):
+    def _submit(self, step: int, wait: float = 0.0):
+        """(Under the lock.) Hand frame ``step`` to the writer; if it is behind, drop the oldest
+        waiting frame (``wait`` > 0: wait up to that long for room instead: the end of a run)."""
+        item = (step, self.pending.pop(step)["parts"])
+        try:
+            self._queue.put(item, timeout=wait) if wait > 0 else self._queue.put_nowait(item)
+            return
+        except queue.Full:
+            pass
+        try:
+            old_step, old_parts = self._queue.get_nowait()
+            self._queue.task_done()
+            self.dropped += 1
+            first = min(old_parts)
+            self._carried += old_parts[first][1].get("controls", [])
+            if self.dropped == 1 or self.dropped % 50 == 0:
+                log.warning("viewer: Rerun is behind, dropped the frame of step %d (%d dropped so far)", old_step,
+                            self.dropped)
+        except queue.Empty:
+            pass
+        self._queue.put_nowait(item)
+
+    def flush(self, timeout: float = 60.0):
+        """Queue every pending frame and wait (up to ``timeout`` s) until the writer logged them."""
+        deadline = time.monotonic() + timeout
         with self._lock:
             for step in sorted(self.pending):
-                self._emit(step)
+                self._submit(step, wait=max(0.01, deadline - time.monotonic()))
+        q = self._queue
+        with q.all_tasks_done:
+            while q.unfinished_tasks and time.monotonic() < deadline:
+                q.all_tasks_done.wait(max(0.01, deadline - time.monotonic()))
 
-    def _emit(self, step: int):
+    def close(self, timeout: float = 30.0):
+        """Flush, stop the writer, then flush the recording (up to ``timeout`` s for a live viewer)
+        and close its sinks: the file gets its footer, and its size is final (summary())."""
+        self.flush()
+        self._queue.put(None)
+        self._writer.join(timeout=timeout)
+        self.rec.flush(timeout_sec=timeout)
+        self.rec.disconnect()
+
+    def summary(self) -> dict:
+        """summary.json's "viewer": frames, drops, latency, recorded size."""
+        out = {"frames": self.frames, "incomplete_frames": self.incomplete, "dropped_frames": self.dropped,
+               "record": str(self.record) if self.record else None}
+        if self.latency_ms:
+            out["composite_latency_ms"] = {"median": float(np.median(self.latency_ms)),
+                                           "max": float(np.max(self.latency_ms))}
+        if self.frame_bytes:
+            out["encoded_mb_per_frame"] = float(np.mean(self.frame_bytes)) / 1e6
+        if self.record is not None and Path(self.record).exists():
+            size = Path(self.record).stat().st_size
+            out["record_mb"] = size / 1e6
+            if self.frames:
+                out["record_mb_per_frame"] = size / 1e6 / self.frames
+        return out
+
+    # -- the writer thread ---------------------------------------------------------------------
+    def _write_loop(self):
+        while True:
+            item = self._queue.get()
+            try:
+                if item is None:
+                    return
+                self._log_frame(*item)
+            except Exception:  # a frame that cannot be logged must not stop the ones after it
+                log.exception("viewer: frame not logged")
+            finally:
+                self._queue.task_done()
+
+    def _log_info(self):
+        rr = self.rr
+        self.rec.log("info", rr.TextDocument(info_text(self.scene, self.particles, self.world, self.changes),
+                                             media_type=rr.MediaType.MARKDOWN), static=True)
+
+    def _log_legend(self):
+        rr, r = self.rr, self.renderer
+        lo, hi = r.range
+        self.rec.log("legend", rr.TextDocument(legend_text(r.quantity, lo, hi), media_type=rr.MediaType.MARKDOWN),
+                     static=True)
+        cam = r.camera
+        width = min(256, cam.width)
+        bar = np.repeat(LUT[np.linspace(0, len(LUT) - 1, width).astype(np.int64)][None], 12, axis=0)
+        if r.quantity == "rank":
+            bar = np.repeat(RANK_COLOURS[np.arange(width) * self.world // width % len(RANK_COLOURS)][None], 12, axis=0)
+        label = "peer 0 ... %d" % (self.world - 1) if r.quantity == "rank" else \
+            f"{r.quantity}: {lo:.3g} ... {hi:.3g} {UNITS[r.quantity]}"
+        y = cam.height + 6
+        self.rec.log("composite/legend", rr.Transform3D(translation=[8, y, 0]), static=True)
+        self.rec.log("composite/legend", rr.Image(bar, opacity=1.0), static=True)
+        self.rec.log("composite/legend_label", rr.Boxes2D(mins=[[8, y]], sizes=[[width, 12]], labels=[label],
+                                                          colors=[[200, 200, 200]]), static=True)
+
+    def _log_camera(self):
+        rr, cam = self.rr, self.renderer.camera
+        eye, rot = camera_pose(cam)
+        self.rec.log("camera", rr.Transform3D(translation=eye, mat3x3=rot), static=True)
+        self.rec.log("camera", rr.Pinhole(focal_length=cam.focal, width=cam.width, height=cam.height,
+                                          image_plane_distance=0.1 * float(np.linalg.norm(np.subtract(cam.eye,
+                                                                                                      cam.target)))),
+                     static=True)
+
+    def _follow(self, step: int, stats: dict):
+        """Follow the peers' camera and colouring (sph control camera / color_by)."""
+        r, rec, rr = self.renderer, self.rec, self.rr
+        name = stats.get("camera")
+        if name is not None and name != r.camera_name and name in r.cameras:
+            r.camera_name = name
+            rec.log("events", rr.TextLog(f"step {step}: camera {name}", level="INFO"))
+            self._log_camera()
+            self._log_legend()
+            rec.send_blueprint(blueprint(self.scene, self.world, r.camera))
+        quantity = stats.get("color_by")
+        if quantity is not None and quantity in UNITS and (quantity != r.quantity or
+                                                           list(stats.get("range", r.range)) != list(r.range)):
+            r.quantity = quantity
+            r.range = tuple(stats.get("range", r.range))
+            rec.log("events", rr.TextLog(f"step {step}: colour by {quantity}", level="INFO"))
+            self._log_legend()
+
+    def image(self, frames):
+        """The composite of ``frames`` (sort-last), the obstacles merged by depth, the domain outline
+        drawn over what is in front of it: (rgb, depth)."""
+        r = self.renderer
+        cam = r.camera
+        rgb, depth, _ = composite(frames, cam.width, cam.height)
+        if r.camera_name not in self._layers:
+            try:
+                self._layers[r.camera_name] = obstacle_layer(self.scene, cam, r.box)
+            except (OSError, ValueError) as e:  # a mesh that cannot be read: the run says so itself
+                log.warning("viewer: obstacles not drawn: %s", e)
+                self._layers[r.camera_name] = None
+        merge_layer(rgb, depth, self._layers[r.camera_name])
+        draw_box(cam, *r.box, rgb, depth, self.scene.dim)
+        return rgb, depth
+
+    def _log_frame(self, step: int, parts: dict):
         rr, rec = self.rr, self.rec
-        parts = self.pending.pop(step)["parts"]
         ranks = sorted(parts)
         stats = {r: parts[r][1] for r in ranks}
         sim_time = max(s["sim_time"] for s in stats.values())
         rec.set_time("step", sequence=step)
         rec.set_time("sim_time", duration=sim_time)
+        self._follow(step, stats[ranks[0]])
+        with self._lock:
+            controls, self._carried = self._carried + list(stats[ranks[0]].get("controls", [])), []
+        for text in controls:  # every peer applied it; log it once
+            rec.log("control", rr.TextLog(text, level="INFO"))
+            changed = apply_setting(self.scene, text)
+            if changed is not self.scene:
+                self.scene = changed
+                self.changes.append((step, text))
+                self._log_info()
         frames = [parts[r][0] for r in ranks]
-        rgb, depth, _ = self.renderer.image(frames)
-        rec.log("composite/rgb", rr.Image(rgb))
-        rec.log("composite/depth", rr.DepthImage(np.where(np.isfinite(depth), depth, 0.0).astype(np.float32),
-                                                 meter=1.0))
+        rgb, depth = self.image(frames)
+        jpeg = encode_jpeg(rgb, RGB_QUALITY)
+        png, meter = encode_depth(depth)
+        size = len(jpeg) + len(png)
+        # opaque: Rerun draws an image that shares its view with other images (the depth, the legend)
+        # half transparent unless told otherwise
+        rec.log("composite/rgb", rr.EncodedImage(contents=jpeg, media_type="image/jpeg", opacity=1.0))
+        rec.log("composite/depth", rr.EncodedDepthImage(png, media_type="image/png", meter=meter))
         boxes = [f for f in frames if f.w and f.h]
         if boxes:
             rec.log("composite/peers", rr.Boxes2D(mins=[[f.x0, f.y0] for f in boxes], sizes=[[f.w, f.h] for f in boxes],
                                                   labels=[f"peer {f.rank}" for f in boxes],
                                                   colors=[RANK_COLOURS[f.rank % len(RANK_COLOURS)] for f in boxes]))
-        for f in frames:
-            if f.w and f.h:
-                rec.log(f"peers/{f.rank}/rgb", rr.Image(f.rgb))
-        for text in stats[ranks[0]].get("controls", []):  # every peer applied it; log it once
-            rec.log("control", rr.TextLog(text, level="INFO"))
+        for f in boxes:
+            data = encode_jpeg(f.rgb, PEER_QUALITY)
+            size += len(data)
+            rec.log(f"peers/{f.rank}/rgb", rr.EncodedImage(contents=data, media_type="image/jpeg"))
         missing = sorted(set(range(self.world)) - set(ranks))
         if missing:
             self.incomplete += 1
             rec.log("composite/status", rr.TextLog(f"step {step}: incomplete frame, no framelet from peer(s) "
                                                    f"{missing}", level="WARN"))
-        pts = [(r, parts[r][2]) for r in ranks if parts[r][2] is not None and len(parts[r][2])]
+        pts = [parts[r][2] for r in ranks if parts[r][2] is not None and len(parts[r][2][0])]
         if pts:
-            rec.log("fluid/points", rr.Points3D(np.concatenate([p for _, p in pts]),
-                                                colors=np.concatenate([np.broadcast_to(
-                                                    RANK_COLOURS[r % len(RANK_COLOURS)], (len(p), 3)) for r, p in pts]),
-                                                radii=0.5 * self.renderer.radius))
+            xyz = np.concatenate([p[0] for p in pts]).astype(np.float32)
+            rgb_pts = np.concatenate([p[1] for p in pts])
+            size += xyz.nbytes + rgb_pts.nbytes
+            rec.log("fluid/points", rr.Points3D(xyz, colors=rgb_pts, radii=self.renderer.radius))
+        counts = [s["particles"] for s in stats.values()]
         for r, s in stats.items():
             rec.log(f"stats/particles/peer{r}", rr.Scalars(s["particles"]))
             rec.log(f"stats/bytes_sent_mb/peer{r}", rr.Scalars(s["bytes_sent"] / 1e6))
             for stage, ms in s["stage_ms"].items():
                 rec.log(f"stats/stage_ms/{stage}/peer{r}", rr.Scalars(ms))
+        if self.world > 1 and counts and np.mean(counts) > 0:
+            rec.log("stats/imbalance", rr.Scalars(max(counts) / np.mean(counts) - 1.0))
         rec.log("stats/kinetic_energy", rr.Scalars(sum(s["kinetic_energy"] for s in stats.values())))
         rec.log("stats/max_density_deviation", rr.Scalars(max(s["max_density_deviation"] for s in stats.values())))
+        rec.log("stats/dropped_frames", rr.Scalars(self.dropped))
         now = time.time()
         latency = 1e3 * (now - max(s["wall_time"] for s in stats.values()))
         self.latency_ms.append(latency)
+        self.frame_bytes.append(size)
         rec.log("stats/composite_latency_ms", rr.Scalars(latency))
         if self._last_emit is not None and now > self._last_emit:
             rec.log("stats/fps", rr.Scalars(1.0 / (now - self._last_emit)))
         self._last_emit = now
         self.frames += 1
+        if self.frames == 1 and self.announce is not None:
+            total = "" if not self.expected_frames else \
+                f", about {size * self.expected_frames / 1e6:.0f} MB for the run's {self.expected_frames} frames"
+            self.announce(f"sph viewer: about {size / 1e6:.2f} MB per frame recorded{total}")
 
 
 # -- the wire side --------------------------------------------------------------------------------
@@ -168,27 +461,36 @@ def frame_arrays(frame: Framelet, stats: dict, points=None) -> dict:
               "depth": frame.depth, "id": frame.id,
               "stats": np.frombuffer(json.dumps(stats).encode(), dtype=np.uint8)}
     if points is not None:
-        arrays["points"] = np.ascontiguousarray(points, dtype=np.float32)
+        arrays["points"] = np.ascontiguousarray(points[0], dtype=np.float32)
+        arrays["point_colours"] = np.ascontiguousarray(points[1], dtype=np.uint8)
     return arrays
 
 
 def frame_from_arrays(rank: int, a: dict):
-    """(framelet, stats, points) from a decoded message; ValueError if the parts do not fit."""
+    """(framelet, stats, points: (positions, colours) or None) from a decoded message; ValueError if
+    the parts do not fit."""
     x0, y0, w, h = (int(v) for v in a["rect"])
     if a["rgb"].shape != (h, w, 3) or a["depth"].shape != (h, w) or a["id"].shape != (h, w):
         raise ValueError(f"framelet planes do not match its rectangle {w} x {h}")
     stats = json.loads(bytes(a["stats"]).decode())
     points = a.get("points")
-    if points is not None and (points.ndim != 2 or points.shape[1] != 3):
-        raise ValueError("points must be (n, 3)")
+    if points is not None:
+        colours = a.get("point_colours")
+        if points.ndim != 2 or points.shape[1] != 3:
+            raise ValueError("points must be (n, 3)")
+        if colours is None or colours.shape != points.shape or colours.dtype != np.uint8:
+            raise ValueError("point_colours must be (n, 3) uint8, one per point")
+        points = (points, colours)
     return Framelet(rank, x0, y0, a["rgb"], a["depth"], a["id"]), stats, points
 
 
 def run_viewer(scene, run_id: str, listen: list[str], connect: list[str], rec, box, world: int | None,
                particles: int, ready=None, idle_timeout: float | None = None, grace: float = 1.0,
-               stats_path: Path | None = None, trust=None) -> int:
+               stats_path: Path | None = None, trust=None, record: Path | None = None,
+               expected_frames: int | None = None) -> int:
     """Subscribe to the run's framelets until rank 0 announces the end (or Ctrl-C); returns frames.
-    ``trust``: the viewer's credentials (nodes/security.py), None for an --insecure run."""
+    ``trust``: the viewer's credentials (nodes/security.py), None for an --insecure run; ``record``:
+    the recording file (its size goes into ``stats_path``)."""
     import zenoh
 
     done = threading.Event()
@@ -207,7 +509,9 @@ def run_viewer(scene, run_id: str, listen: list[str], connect: list[str], rec, b
         state["last"] = time.perf_counter()
         if state["viewer"] is None:
             n = world or int(stats["world"])
-            state["viewer"] = Viewer(scene, box, rec, n, stats.get("particles_total", particles))
+            state["viewer"] = Viewer(scene, box, rec, n, stats.get("particles_total", particles),
+                                     expected_frames=expected_frames, record=record,
+                                     announce=lambda text: print(text, flush=True))
         state["viewer"].add(step, source, frame, stats, points)
 
     session = zenoh.open(zenoh_config(listen, connect, trust=trust))
@@ -224,15 +528,12 @@ def run_viewer(scene, run_id: str, listen: list[str], connect: list[str], rec, b
         if done.is_set():
             time.sleep(grace)  # framelets still on their way from the other peers
     finally:
-        if state["viewer"] is not None:
-            state["viewer"].flush()
         session.close()
+        if state["viewer"] is not None:
+            state["viewer"].close()
         rec.flush()
     v = state["viewer"]
     if stats_path is not None and v is not None:
-        write_summary(stats_path, {"frames": v.frames, "incomplete_frames": v.incomplete,
-                                   "composite_latency_ms": {"median": float(np.median(v.latency_ms)),
-                                                            "max": float(np.max(v.latency_ms))},
-                                   "note": "latency: from the newest framelet's publication to the composite "
-                                           "being logged (same-machine clocks)"})
+        write_summary(stats_path, dict(v.summary(), note="latency: from the newest framelet's publication to the "
+                                                         "composite being logged (same-machine clocks)"))
     return 0 if v is None else v.frames

@@ -3,7 +3,8 @@
 #   1. the CPU/CUDA parity cases of tests/cuda_parity.py, in parallel (each compiles its own kernels),
 #      checked against the tolerances of tests/test_cuda.py;
 #   2. 200 steps on the GPU against 200 on the CPU (tests/test_cuda.py::test_long_gpu_run...);
-#   3. the GPU benchmark (sph bench --backend cuda), and the same scene on all CPU cores for the ratio.
+#   3. the GPU benchmark (sph bench --backend cuda; lists and the cell walk), the largest run that fits
+#      (BIG particles, default 300 M, walking), and the same scene on all CPU cores for the ratio.
 #
 #   bash scripts/gpu_check.sh OUTDIR [SIZES...]     (default sizes: 100000 1000000 2000000)
 #
@@ -34,7 +35,7 @@ say "machine"
 say "parity cases, in parallel"
 CASES=${CASES:-$($PY -c "import sys; sys.argv=['x']; sys.path.insert(0, 'tests'); import cuda_parity; print(' '.join(cuda_parity.CASES))")}
 for c in $CASES; do
-    ( NUMBA_NUM_THREADS=2 SPH_CACHE_DIR="$TMP/cache_$c" timeout 240 $PY tests/cuda_parity.py "$c" \
+    ( NUMBA_NUM_THREADS=2 SPH_CACHE_DIR="$TMP/cache_$c" timeout 150 $PY tests/cuda_parity.py "$c" \
         >"$TMP/$c.json" 2>"$TMP/$c.log"; echo "$c exit $?" >>"$TMP/$c.log" ) &
 done
 wait
@@ -69,15 +70,20 @@ EOF
 [ $? -eq 0 ] || status=1
 
 say "long run: 200 steps GPU vs CPU"
-SPH_CACHE_DIR="$TMP/cache_tiny_f64" timeout 150 $PY -m pytest -q -p no:cacheprovider -m gpu \
+SPH_CACHE_DIR="$TMP/cache_tiny_f64" timeout 90 $PY -m pytest -q -p no:cacheprovider -m gpu \
     "tests/test_cuda.py::test_long_gpu_run_stays_close_to_cpu" >>"$LOG" 2>&1 || status=1
 
-say "GPU benchmark: sizes $SIZES"
-SPH_CACHE_DIR="$TMP/cache_bench" timeout 240 $PY -m launch.cli bench --backend cuda --sizes $SIZES \
-    --precisions f32 f64 --steps ${STEPS:-200} --json "$OUTDIR/gpu.json" >>"$LOG" 2>&1 || status=1
+say "GPU benchmark: sizes $SIZES, neighbour lists and the cell walk side by side"
+SPH_CACHE_DIR="$TMP/cache_bench" timeout 150 $PY -m launch.cli bench --backend cuda --sizes $SIZES \
+    --precisions f32 f64 --neighbours lists walk --steps ${STEPS:-200} --json "$OUTDIR/gpu.json" >>"$LOG" 2>&1 \
+    || status=1
+
+say "GPU memory: ${BIG:-300000000} particles stepping, f32, cell walk (device bytes per particle)"
+SPH_CACHE_DIR="$TMP/cache_bench" timeout 120 $PY -m launch.cli bench --backend cuda --sizes ${BIG:-300000000} \
+    --precisions f32 --neighbours walk --steps 3 --json "$OUTDIR/gpu_big.json" >>"$LOG" 2>&1 || status=1
 
 say "CPU benchmark on $(nproc) cores: 1000000 particles"
-SPH_CACHE_DIR="$TMP/cache_bench" timeout 120 $PY -m launch.cli bench --sizes 1000000 --precisions f32 \
+SPH_CACHE_DIR="$TMP/cache_bench" timeout 60 $PY -m launch.cli bench --sizes 1000000 --precisions f32 \
     --threads "$(nproc)" --steps 20 --json "$OUTDIR/cpu.json" >>"$LOG" 2>&1 || status=1
 say "done (status $status)"
 rm -rf "$TMP"

@@ -5,11 +5,10 @@ integrator, solver) into their codes and compile-time ``choices``, the resolutio
 walls, the global grid's geometry, the particle mass and the ``Params`` the stages read, and which
 optional terms run. It holds no particles and no per-step state: the ``Simulation`` (solver.py) owns
 those, the backend owns the scratch (stages.SCRATCH) and the solver plug-in (solvers.py) its own.
-Only ``set_parameter`` changes a model during a run (the run-time settable keys of nodes/control.py).
+A run changes its model only through ``Simulation.change_scene`` (the keys that may change during a
+run, scene.LIVE), which copies the live attributes of a Model rebuilt from the changed scene.
 """
 from __future__ import annotations
-
-import dataclasses
 
 import numpy as np
 
@@ -47,7 +46,7 @@ def make_grid(scene, walls, H, dtype):
 
 
 class Model:
-    """Attributes (set once; ``scene`` and ``prm`` also by ``set_parameter``):
+    """Attributes (set once; the live ones, solver.LIVE_MODEL, also by ``Simulation.change_scene``):
 
     scene, precision ("f32"/"f64"), dtype; dx (m, the lattice spacing), H (m, support radius), h = H/2;
     kernel, eos, viscosity, integrator (choices.* IntEnums); neighbours ("lists" or "walk"); choices (stages.CHOICES name -> code);
@@ -57,12 +56,9 @@ class Model:
     use_drift, use_vorticity, use_diffusion; force_terms ((stage, scene value)
     of stages.FORCE_TERMS that are on); extra_names (the arrays carried in state.extra)."""
 
-    def __init__(self, scene: Scene, precision: str | None = None, backend: str = "cpu",
-                 neighbours: str | None = None):
+    def __init__(self, scene: Scene, precision: str | None = None, backend: str = "cpu"):
         self.scene = scene
-        self.neighbours = neighbours or scene.run.neighbours
-        if self.neighbours not in NEIGHBOURS:
-            raise ValueError(f"neighbours must be one of {', '.join(NEIGHBOURS)}, got {self.neighbours!r}")
+        self.neighbours = scene.run.neighbours
         self.precision = precision or scene.run.precision
         if self.precision == "auto":  # float32 is the GPU's native precision; float64 the CPU's default
             self.precision = "f32" if backend == "cuda" else "f64"
@@ -142,23 +138,3 @@ class Model:
         return p._replace(gravity_x=p.gravity_x * f, gravity_y=p.gravity_y * f, gravity_z=p.gravity_z * f,
                           external_x=p.external_x * f, external_y=p.external_y * f, external_z=p.external_z * f,
                           central_omega2=p.central_omega2 * f)
-
-    def set_parameter(self, key: str, value):
-        """Change a run-time settable value (nodes/control.py SETTABLE: body forces, viscosity, wall
-        friction/restitution) from the next step on; ``value`` is already validated."""
-        section, name = key.split(".")
-        self.scene = dataclasses.replace(self.scene, **{section: dataclasses.replace(getattr(self.scene, section),
-                                                                                  **{name: value})})
-        p, f = self.prm, self.dtype.type
-        if key in ("forces.external", "forces.gravity"):
-            self.prm = p._replace(**{f"{name}_{a}": f(value[i]) for i, a in enumerate("xyz")})
-        elif key == "sph.alpha":
-            self.prm = p._replace(alpha=f(value))
-        elif key == "sph.nu":
-            if self.viscosity in (Viscosity.MULLER, Viscosity.MORRIS):
-                self.nu = value
-                self.prm = p._replace(mu=f(self.scene.fluid.rest_density * value))
-        elif key in ("boundary.friction", "boundary.restitution"):
-            self.prm = p._replace(**{name: f(value)})
-        else:
-            raise ValueError(f"{key} cannot be changed during a run")

@@ -27,9 +27,12 @@ class SceneError(ValueError):
 
 
 def spec(default, help: str, *, range: tuple | None = None, choices=None, min_exclusive: bool = False,
-         length: tuple | None = None):
-    """Declare a scene key: default, help text and constraints (checked by ``_check_value``)."""
-    meta = {"help": help, "range": range, "choices": choices, "min_exclusive": min_exclusive, "length": length}
+         length: tuple | None = None, control: bool | str | None = None):
+    """Declare a scene key: default, help text and constraints (checked by ``_check_value``), and
+    ``control``: LIVE if the key may change while the run goes on, else why not (None: the reason
+    of its section, ``SECTION_CONTROL``)."""
+    meta = {"help": help, "range": range, "choices": choices, "min_exclusive": min_exclusive, "length": length,
+            "control": control}
     if isinstance(default, list):  # arrays of tables are held as tuples, exactly as _build stores them
         return field(default=tuple(default), metadata=meta)
     if isinstance(default, dict):
@@ -39,20 +42,36 @@ def spec(default, help: str, *, range: tuple | None = None, choices=None, min_ex
 
 VEC = (2, 3)  # vectors may have 2 (2D scenes) or 3 components
 
+# Which keys may change while a run goes on (``sph control OUT set KEY=VALUE``, and ``sph run --resume
+# DIR --set KEY=VALUE``): LIVE ones, applied by every peer after the same step, rebuild only the
+# Params and the scene the step reads (sphcore/solver.py ``Simulation.change_scene`` checks that
+# nothing else changed). Every other key names why not.
+LIVE = True
+COMPILED = "changes the compiled step (a kernel, a stage choice or which stages run)"
+PARTICLES = "changes the particle set or the initial particles (spacing, blocks, initial flow)"
+WORLD = "changes the walls or the grid (container, planes, obstacles, support radius)"
+AT_LOAD = "is checked once, when the scene is loaded"
+AT_START = "is read once, when the run starts"
+RUN_LENGTH = "fixes the run's length when it starts (--steps / --until)"
+PEERS = "fixes the peers' blocks when the peers start (balancing moves the cuts between them)"
+VIEWER = ("is read by the viewer when it starts; switch the view with the commands camera NAME and "
+          "color_by QUANTITY")
+OUTPUT = "fixes what the VTK series holds when the run starts"
+
 
 @dataclass(frozen=True)
 class SceneInfo:
     name: str = spec("scene", "short name, used in logs and output metadata")
     description: str = spec("", "one-line description")
-    dim: int = spec(3, "spatial dimension", choices=(2, 3))
+    dim: int = spec(3, "spatial dimension", choices=(2, 3), control=PARTICLES)
 
 
 @dataclass(frozen=True)
 class Particles:
     spacing: float = spec(0.02, "initial lattice spacing dx in m: the one resolution key", range=(0.0, math.inf),
-                          min_exclusive=True)
+                          min_exclusive=True, control=PARTICLES)
     max_particles: int = spec(20_000_000, "refuse scenes that would create more particles than this",
-                              range=(1, 10**10))
+                              range=(1, 10**10), control=AT_LOAD)
 
 
 @dataclass(frozen=True)
@@ -71,75 +90,88 @@ class Block:
 
 @dataclass(frozen=True)
 class Fluid:
-    rest_density: float = spec(1000.0, "rest density rho0 (kg/m^3)", range=(0.0, math.inf), min_exclusive=True)
+    rest_density: float = spec(1000.0, "rest density rho0 (kg/m^3)", range=(0.0, math.inf), min_exclusive=True,
+                               control=LIVE)
     initial_flow: str = spec("none", "analytic initial velocity field added to the blocks' velocity; straining: "
                              "u = A (x - c), v = -A (y - c) (the oscillating drop)",
-                             choices=("none", "taylor_green", "straining"))
-    flow_speed: float = spec(1.0, "taylor_green: velocity amplitude U (m/s)", range=(0.0, math.inf))
-    flow_rate: float = spec(0.0, "straining: the strain rate A (1/s)", range=(-math.inf, math.inf))
-    flow_center: tuple = spec((0.0, 0.0, 0.0), "straining: the centre c of the flow (m)", length=VEC)
-    blocks: list = spec([], "regions filled with fluid on a lattice of the given spacing ([[fluid.blocks]])")
+                             choices=("none", "taylor_green", "straining"), control=PARTICLES)
+    flow_speed: float = spec(1.0, "taylor_green: velocity amplitude U (m/s)", range=(0.0, math.inf), control=PARTICLES)
+    flow_rate: float = spec(0.0, "straining: the strain rate A (1/s)", range=(-math.inf, math.inf), control=PARTICLES)
+    flow_center: tuple = spec((0.0, 0.0, 0.0), "straining: the centre c of the flow (m)", length=VEC, control=PARTICLES)
+    blocks: list = spec([], "regions filled with fluid on a lattice of the given spacing ([[fluid.blocks]])",
+                        control=PARTICLES)
 
 
 @dataclass(frozen=True)
 class SPH:
     solver: str = spec("wcsph", "pressure solver: wcsph (weakly compressible, pressure from the EOS) or dfsph "
                        "(incompressible, Bender & Koschier 2017: pressure solved every step; eos and sound_speed "
-                       "unused)", choices=("wcsph", "dfsph"))
+                       "unused)", choices=("wcsph", "dfsph"), control=COMPILED)
     density_tolerance: float = spec(0.001, "dfsph: the density solve iterates until the mean |rho*/rho0 - 1| is "
-                                    "below this", range=(0.0, 1.0), min_exclusive=True)
+                                    "below this", range=(0.0, 1.0), min_exclusive=True, control=LIVE)
     divergence_tolerance: float = spec(0.001, "dfsph: the divergence solve iterates until the mean |D rho/Dt| dt / "
-                                       "rho0 is below this (0 = no divergence solve)", range=(0.0, 1.0))
-    max_iterations: int = spec(100, "dfsph: most iterations of either solve in one step", range=(1, 10_000))
+                                       "rho0 is below this (0 = no divergence solve)", range=(0.0, 1.0), control=LIVE)
+    max_iterations: int = spec(100, "dfsph: most iterations of either solve in one step", range=(1, 10_000),
+                               control=LIVE)
     density: str = spec("summation", "density: summation (rho = sum m W, from the positions) or continuity "
                         "(integrated D rho/Dt with delta-SPH diffusion: smooth pressure at rest; wcsph only)",
-                        choices=("summation", "continuity"))
+                        choices=("summation", "continuity"), control=COMPILED)
     delta: float = spec(0.1, "continuity: delta-SPH diffusion coefficient delta (Molteni & Colagrossi 2009, with "
-                        "the hydrostatic correction of Fourtakas et al. 2019; 0 = no diffusion)", range=(0.0, 1.0))
-    kernel: str = spec("wendland_c2", "smoothing kernel family", choices=tuple(KERNELS))
+                        "the hydrostatic correction of Fourtakas et al. 2019; 0 = no diffusion)", range=(0.0, 1.0),
+                        control=LIVE)
+    kernel: str = spec("wendland_c2", "smoothing kernel family", choices=tuple(KERNELS), control=COMPILED)
     support: float = spec(2.3, "support radius H in units of the spacing (about 50 neighbours in 3D at 2.3)",
-                          range=(1.0, 4.0))
-    eos: str = spec("tait", "equation of state", choices=tuple(EOSES))
+                          range=(1.0, 4.0), control=WORLD)
+    eos: str = spec("tait", "equation of state", choices=tuple(EOSES), control=COMPILED)
     sound_speed: float = spec(20.0, "numerical speed of sound c0 (m/s); >= 10x the largest flow speed",
-                              range=(0.0, math.inf), min_exclusive=True)
-    clamp_negative_pressure: bool = spec(True, "floor pressure at 0 (free surfaces); false for closed flows")
-    viscosity: str = spec("artificial", "viscosity model", choices=tuple(VISCOSITIES))
-    alpha: float = spec(0.02, "artificial viscosity coefficient (viscosity = artificial)", range=(0.0, 10.0))
-    nu: float = spec(1.0e-6, "kinematic viscosity (m^2/s) (viscosity = muller or morris)", range=(0.0, 1.0e3))
+                              range=(0.0, math.inf), min_exclusive=True, control=LIVE)
+    clamp_negative_pressure: bool = spec(True, "floor pressure at 0 (free surfaces); false for closed flows",
+                                         control=LIVE)
+    viscosity: str = spec("artificial", "viscosity model", choices=tuple(VISCOSITIES), control=COMPILED)
+    alpha: float = spec(0.02, "artificial viscosity coefficient (viscosity = artificial)", range=(0.0, 10.0),
+                        control=LIVE)
+    nu: float = spec(1.0e-6, "kinematic viscosity (m^2/s) (viscosity = muller or morris)", range=(0.0, 1.0e3),
+                     control=LIVE)
 
 
 @dataclass(frozen=True)
 class Terms:
-    xsph: float = spec(0.0, "XSPH velocity smoothing eps (0 = off; typical 0.1-0.5)", range=(0.0, 1.0))
+    xsph: float = spec(0.0, "XSPH velocity smoothing eps (0 = off; typical 0.1-0.5)", range=(0.0, 1.0), control=LIVE)
     shifting: float = spec(0.0, "Fickian particle shifting coefficient A, D = A h |v| dt (0 = off; typical 1-2)",
-                           range=(0.0, 10.0))
-    surface_tension: float = spec(0.0, "colour-field surface tension sigma in N/m (0 = off)", range=(0.0, 1.0e3))
-    surface_threshold: float = spec(0.1, "colour-gradient threshold as a fraction of 1/spacing", range=(0.0, 10.0))
-    vorticity_confinement: float = spec(0.0, "vorticity confinement eps in m/s (0 = off)", range=(0.0, 1.0e3))
+                           range=(0.0, 10.0), control=LIVE)
+    surface_tension: float = spec(0.0, "colour-field surface tension sigma in N/m (0 = off)", range=(0.0, 1.0e3),
+                                  control=LIVE)
+    surface_threshold: float = spec(0.1, "colour-gradient threshold as a fraction of 1/spacing", range=(0.0, 10.0),
+                                    control=LIVE)
+    vorticity_confinement: float = spec(0.0, "vorticity confinement eps in m/s (0 = off)", range=(0.0, 1.0e3),
+                                        control=LIVE)
     drag: float = spec(0.0, "linear drag k in 1/s, a += -k v: damps a flow to rest, e.g. to settle a tank before "
-                       "a run (0 = off; keep k dt < 1)", range=(0.0, 1.0e4))
+                       "a run (0 = off; keep k dt < 1)", range=(0.0, 1.0e4), control=LIVE)
 
 
 @dataclass(frozen=True)
 class Forces:
-    gravity: tuple = spec((0.0, -9.81, 0.0), "gravitational acceleration (m/s^2)", length=VEC)
-    external: tuple = spec((0.0, 0.0, 0.0), "constant external acceleration, any direction (m/s^2)", length=VEC)
+    gravity: tuple = spec((0.0, -9.81, 0.0), "gravitational acceleration (m/s^2)", length=VEC, control=LIVE)
+    external: tuple = spec((0.0, 0.0, 0.0), "constant external acceleration, any direction (m/s^2)", length=VEC,
+                           control=LIVE)
     ramp_time: float = spec(0.0, "gravity and external force rise smoothly from 0 over this time (s); 0 = at once",
-                            range=(0.0, 1.0e6))
+                            range=(0.0, 1.0e6), control=LIVE)
     central_omega: float = spec(0.0, "central force field a = -omega^2 (x - central_center) (1/s; 0 = off), e.g. "
-                                "the oscillating drop of Monaghan & Rafiee 2013", range=(0.0, 1.0e6))
-    central_center: tuple = spec((0.0, 0.0, 0.0), "centre of the central force field (m)", length=VEC)
+                                "the oscillating drop of Monaghan & Rafiee 2013", range=(0.0, 1.0e6), control=LIVE)
+    central_center: tuple = spec((0.0, 0.0, 0.0), "centre of the central force field (m)", length=VEC, control=LIVE)
 
 
 @dataclass(frozen=True)
 class Time:
-    integrator: str = spec("symplectic_euler", "time integrator", choices=tuple(INTEGRATORS))
-    mode: str = spec("adaptive", "time step: fixed dt, or adaptive from CFL limits", choices=("fixed", "adaptive"))
+    integrator: str = spec("symplectic_euler", "time integrator", choices=tuple(INTEGRATORS), control=COMPILED)
+    mode: str = spec("adaptive", "time step: fixed dt, or adaptive from CFL limits", choices=("fixed", "adaptive"),
+                     control=LIVE)
     dt: float = spec(1.0e-4, "fixed: the time step; adaptive: the largest allowed step (s)",
-                     range=(0.0, 1.0), min_exclusive=True)
+                     range=(0.0, 1.0), min_exclusive=True, control=LIVE)
     cfl: float = spec(0.25, "CFL number for the acoustic, force, viscous and shifting limits", range=(0.0, 2.0),
-                      min_exclusive=True)
-    steps: int = spec(200, "steps to run when neither --steps nor --until is given", range=(0, 10**9))
+                      min_exclusive=True, control=LIVE)
+    steps: int = spec(200, "steps to run when neither --steps nor --until is given", range=(0, 10**9),
+                      control=RUN_LENGTH)
 
 
 @dataclass(frozen=True)
@@ -182,23 +214,24 @@ class Obstacle:
 
 @dataclass(frozen=True)
 class Boundary:
-    restitution: float = spec(0.0, "normal velocity kept (reversed) on wall contact", range=(0.0, 1.0))
-    friction: float = spec(0.0, "fraction of tangential velocity removed on wall contact", range=(0.0, 1.0))
-    gap: float = spec(0.25, "closest approach to a wall, in units of the spacing", range=(0.0, 0.5))
+    restitution: float = spec(0.0, "normal velocity kept (reversed) on wall contact", range=(0.0, 1.0), control=LIVE)
+    friction: float = spec(0.0, "fraction of tangential velocity removed on wall contact", range=(0.0, 1.0),
+                           control=LIVE)
+    gap: float = spec(0.25, "closest approach to a wall, in units of the spacing", range=(0.0, 0.5), control=LIVE)
 
 
 @dataclass(frozen=True)
 class Run:
     precision: str = spec("auto", "floating point precision; auto = f64 on the CPU, f32 on a GPU (--precision "
-                                  "overrides)", choices=("auto", "f32", "f64"))
+                                  "overrides)", choices=("auto", "f32", "f64"), control=COMPILED)
     neighbours: str = spec("lists", "how the neighbour passes find neighbours: lists (built once per step, "
                                     "~256 B per particle; faster on the CPU) or walk (each pass walks the 27 "
                                     "grid cells; no per-particle lists). Same neighbours, same order",
-                           choices=("lists", "walk"))
+                           choices=("lists", "walk"), control=COMPILED)
     log_every: int = spec(0, "steps between progress log lines when not on a terminal (0 = every 5 % of the run)",
-                          range=(0, 10**9))
+                          range=(0, 10**9), control=AT_START)
     max_density_ratio: float = spec(3.0, "stop with a diagnostic if some rho/rho0 exceeds this",
-                                    range=(1.0, math.inf), min_exclusive=True)
+                                    range=(1.0, math.inf), min_exclusive=True, control=LIVE)
 
 
 @dataclass(frozen=True)
@@ -209,10 +242,10 @@ class DecompositionSection:
                        length=(3,))
     balance_every: int = spec(0, "move the cut planes every this many steps so peers get near-equal work "
                                  "(0 = fixed cuts; the first cuts always balance the initial particles)",
-                              range=(0, 10**9))
+                              range=(0, 10**9), control=LIVE)
     balance_by: str = spec("time", "what balancing equalises: measured compute time (particles weighted by each "
                                    "peer's seconds per particle) or particle counts (reproducible cuts)",
-                           choices=("time", "particles"))
+                           choices=("time", "particles"), control=LIVE)
 
 
 @dataclass(frozen=True)
@@ -243,10 +276,10 @@ class Render:
 @dataclass(frozen=True)
 class Output:
     checkpoint_every: int = spec(0, "write a checkpoint every this many steps (0 = none; --checkpoint-every)",
-                                 range=(0, 10**9))
-    checkpoint_keep: int = spec(2, "how many of the newest checkpoints to keep", range=(1, 10**6))
+                                 range=(0, 10**9), control=LIVE)
+    checkpoint_keep: int = spec(2, "how many of the newest checkpoints to keep", range=(1, 10**6), control=LIVE)
     vtk_every: int = spec(0, "write ParaView files (.vtp particles, .pvd series) every this many steps "
-                             "(0 = none; --vtk K)", range=(0, 10**9))
+                             "(0 = none; --vtk K)", range=(0, 10**9), control=LIVE)
     surface: bool = spec(False, "with vtk_every: also extract the fluid surface (marching cubes) per frame")
     surface_resolution: float = spec(0.5, "surface sampling grid step, in particle spacings", range=(0.1, 4.0))
 
@@ -258,6 +291,11 @@ SECTIONS: dict[str, type] = {
 }
 LIST_ITEMS: dict[str, type] = {"fluid.blocks": Block, "domain.planes": Plane, "obstacles": Obstacle,
                                "render.cameras": RenderCamera}
+# why the keys of a section (or of an array of tables) declared without ``control`` cannot change
+# during a run
+SECTION_CONTROL = {"scene": AT_START, "domain": WORLD, "obstacles": WORLD, "decomposition": PEERS,
+                   "render": VIEWER, "output": OUTPUT, "fluid.blocks": PARTICLES, "domain.planes": WORLD,
+                   "render.cameras": VIEWER}
 
 
 @dataclass(frozen=True)
@@ -640,8 +678,11 @@ def check_mesh_file(path: Path, key: str):
         raise SceneError(f"{key}: the mesh has no extent (every vertex at one point)")
 
 
-def _check_combinations(s: Scene) -> Scene:
-    """Cross-key rules: each error names the keys involved and what would be allowed."""
+def _check_combinations(s: Scene, files: bool = True) -> Scene:
+    """Cross-key rules: each error names the keys involved and what would be allowed. ``files``
+    False (a live change, ``live_change``): the mesh files and the memory estimate, which no live key
+    changes, are not checked again (the running run itself holds memory the estimate would count as
+    missing)."""
     dom = s.domain
     if s.dim == 2:
         if dom.container == "cylinder":
@@ -683,7 +724,7 @@ def _check_combinations(s: Scene) -> Scene:
                          "or [0, 0, 0] to choose them from the peer count")
     obstacles = []
     for i, ob in enumerate(s.obstacles):
-        if ob.shape == "mesh":
+        if ob.shape == "mesh" and files:
             if s.dim != 3:
                 raise SceneError(f"obstacles[{i}].shape = 'mesh': mesh obstacles need a 3D scene")
             path = mesh_path(s, ob)
@@ -729,7 +770,8 @@ def _check_combinations(s: Scene) -> Scene:
             raise SceneError("fluid.initial_flow = 'taylor_green': needs dim = 2 and domain.periodic = [true, true]")
     if s.time.mode == "fixed" and s.time.integrator == "leapfrog" and s.time.dt <= 0:
         raise SceneError(f"time.dt = {s.time.dt!r}: must be positive")
-    _check_resources(s)
+    if files:
+        _check_resources(s)
     return s
 
 
@@ -846,6 +888,100 @@ def reference_markdown() -> str:
             shown = _toml_value(default)
             lines.append(f"| `{f.name}` | `{shown}` | {allowed} | {meta['help']} |")
         lines.append("")
+    return "\n".join(lines)
+
+
+def _field_of(path: list, text: str) -> tuple[str, dataclasses.Field, str]:
+    """(key, its declaration, the section or array-of-tables path it is declared in) of an override
+    path (``parse_override``); SceneError naming an unknown section or key."""
+    if len(path) < 2 or not isinstance(path[0], str):
+        raise SceneError(f"{text!r}: expected section.key=value")
+    if path[0] not in SECTIONS:
+        raise SceneError(f"{text!r}: unknown section '{path[0]}'{_did_you_mean(path[0], SECTIONS)} "
+                         f"(sections: {', '.join(SECTIONS)})")
+    for i, seg in enumerate(path):  # an index follows an array of tables ([[fluid.blocks]], [[obstacles]])
+        before = ".".join(s for s in path[:i] if isinstance(s, str))
+        if isinstance(seg, int) and (before not in LIST_ITEMS or isinstance(path[i - 1], int)):
+            raise SceneError(f"{text!r}: [{seg}] after {before!r}, which is not an array of tables")
+    cls, where, names = SECTIONS[path[0]], path[0], [p for p in path if isinstance(p, str)]
+    for name in names[1:-1]:
+        if f"{where}.{name}" not in LIST_ITEMS:
+            raise SceneError(f"{text!r}: [{where}] has no array of tables {name!r}")
+        where = f"{where}.{name}"
+        cls = LIST_ITEMS[where]
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    name = names[-1]
+    if name not in fields:
+        raise SceneError(f"{text!r}: unknown key '{where}.{name}'{_did_you_mean(name, fields)} (allowed in "
+                         f"[{where}]: {', '.join(fields)})")
+    return f"{where}.{name}", fields[name], where
+
+
+def key_control(key: str):
+    """LIVE if scene key ``key`` ("section.name", or an item of an array of tables such as
+    "fluid.blocks[0].velocity") may change while the run goes on, else the reason it may not
+    (a phrase: "changes the compiled step ..."); SceneError for a key that does not exist."""
+    path, _ = parse_override(f"{key}=0")
+    key, f, where = _field_of(path, key)
+    if any(isinstance(p, int) for p in path) or where in LIST_ITEMS or where == "obstacles":
+        return f.metadata.get("control") or SECTION_CONTROL[where if where in SECTION_CONTROL else path[0]]
+    control = f.metadata.get("control")
+    return control if control is not None else SECTION_CONTROL[where]
+
+
+def live_keys() -> list[str]:
+    """Every scene key that may change while a run goes on, in declaration order."""
+    return [f"{name}.{f.name}" for name, cls in SECTIONS.items() if name != "obstacles"
+            for f in dataclasses.fields(cls) if f"{name}.{f.name}" not in LIST_ITEMS
+            and key_control(f"{name}.{f.name}") is LIVE]
+
+
+def live_change(scene: Scene, text: str) -> tuple[str, Scene]:
+    """``KEY=VALUE`` (``--set`` syntax) applied to ``scene`` for a key that may change while the run
+    goes on: (the key, the new scene), the value checked like the scene file (type, range, the
+    cross-key rules). SceneError naming the key, the value and what is allowed, or why the key
+    cannot change during a run."""
+    path, value = parse_override(text)
+    key, f, where = _field_of(path, text)
+    control = key_control(".".join(str(p) if isinstance(p, str) else f"[{p}]" for p in path).replace(".[", "["))
+    if control is not LIVE:
+        raise SceneError(f"{key} cannot change during a run: it {control} (keys that can: {', '.join(live_keys())})")
+    checked = _check_value(key, f, value)
+    if f.metadata.get("length") == VEC and len(checked) == 2:
+        if scene.dim == 3:
+            raise SceneError(f"{key} = {list(checked)!r}: a 3D scene needs 3 components")
+        checked = _pad(checked)
+    section = getattr(scene, where)
+    if getattr(section, f.name) == checked:
+        return key, scene
+    new = dataclasses.replace(scene, **{where: dataclasses.replace(section, **{f.name: checked})})
+    return key, _check_combinations(new, files=False)
+
+
+def control_markdown() -> str:
+    """Markdown of which scene keys may change during a run (``sph control OUT set KEY=VALUE``) and
+    why the others may not, generated from the declarations above; docs/USAGE.md embeds it."""
+    lines = ["| key | meaning |", "|---|---|"]
+    for key in live_keys():
+        section, name = key.split(".")
+        f = next(f for f in dataclasses.fields(SECTIONS[section]) if f.name == name)
+        lines.append(f"| `{key}` | {f.metadata['help'].replace('|', chr(92) + '|')} |")
+    fixed = {}
+    for name, cls in list(SECTIONS.items()) + list(LIST_ITEMS.items()):
+        if name == "obstacles" and cls is Obstacle and name in fixed.get(WORLD, []):
+            continue
+        for f in dataclasses.fields(cls):
+            key = f"{name}.{f.name}" if name not in LIST_ITEMS else f"{name}[].{f.name}"
+            if f"{name}.{f.name}" in LIST_ITEMS or key in fixed.get(WORLD, []):
+                continue
+            control = key_control(key.replace("[]", "[0]"))
+            if control is not LIVE:
+                fixed.setdefault(control, [])
+                if key not in fixed[control]:
+                    fixed[control].append(key)
+    lines += ["", "Not during a run (each refusal names its reason):", ""]
+    for reason, keys in fixed.items():
+        lines.append(f"- {', '.join(f'`{k}`' for k in keys)}: {reason}.")
     return "\n".join(lines)
 
 

@@ -27,6 +27,43 @@ from sphcore.timestep import LIMITS, choose_dt
 CFL_LIMIT = 1.0  # a fixed time.dt beyond the CFL-1 acoustic/force/viscous limit stops the run
 
 
+# What a live change (``Simulation.change_scene``) may replace in the Model; every other attribute
+# must come out equal, or the change is refused (MODEL_PARTS names them for the refusal).
+LIVE_MODEL = ("scene", "prm", "nu", "mass", "force_terms")
+MODEL_PARTS = {
+    "choices": "a compile-time choice", "kernel": "the kernel", "eos": "the EOS", "viscosity": "the viscosity model",
+    "integrator": "the integrator", "use_xsph": "the XSPH stage", "use_shifting": "the shifting stage",
+    "use_drift": "the drift", "use_vorticity": "the vorticity stages", "use_diffusion": "the delta-SPH stage",
+    "continuity": "the density scheme", "dfsph": "the solver", "extra_names": "the carried arrays",
+    "force_terms": "the force-term stages", "walls": "the walls", "host_grid": "the grid", "grid_lo": "the grid",
+    "lo": "the grid", "periodic": "the periodic axes", "dx": "the spacing", "H": "the support radius",
+    "h": "the support radius", "gradient_moment": "the kernel gradient", "precision": "the precision",
+    "dtype": "the precision",
+}
+
+
+def _same(a, b) -> bool:
+    """Equal values: numbers, enums, tuples and dicts by ==, arrays by their bits, objects (the walls,
+    the grid's geometry) attribute by attribute; a grid's per-step arrays (counts, order) are not its
+    geometry and are skipped."""
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return (isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.dtype == b.dtype
+                and a.shape == b.shape and np.array_equal(a, b))
+    if hasattr(a, "__dict__") and not isinstance(a, type) and type(a) is type(b):
+        geometry = GRID_GEOMETRY if hasattr(a, "cells_of") else None
+        names = geometry or sorted(vars(a))
+        return all(_same(getattr(a, n, None), getattr(b, n, None)) for n in names)
+    if isinstance(a, (tuple, list)) and isinstance(b, (tuple, list)):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    try:
+        return bool(a == b)
+    except (TypeError, ValueError):
+        return False
+
+
+GRID_GEOMETRY = ("origin", "ncell", "cell", "period", "periodic")
+
+
 class SimulationError(RuntimeError):
     """The run became unphysical; the message names the step, the cause and the particles."""
 
@@ -41,10 +78,8 @@ class Simulation:
     scene fixes (H, kernel, walls, prm, flags...) is the ``model``'s, read through the simulation
     (``sim.H`` is ``sim.model.H``)."""
 
-    def __init__(self, scene: Scene, precision: str | None = None, backend: str = "cpu", device: int | None = None,
-                 neighbours: str | None = None):
-        """``backend`` "cpu" or "cuda"; ``device``: the GPU index for cuda (modulo the GPUs visible);
-        ``neighbours``: "lists" or "walk" (model.NEIGHBOURS), overriding the scene's run.neighbours."""
+    def __init__(self, scene: Scene, precision: str | None = None, backend: str = "cpu", device: int | None = None):
+        """``backend`` "cpu" or "cuda"; ``device``: the GPU index for cuda (modulo the GPUs visible)."""
         if backend not in BACKENDS:
             raise ValueError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
         self.backend = backend
@@ -52,7 +87,7 @@ class Simulation:
         if backend == "cuda":  # fail before any set-up work when there is no GPU
             from sphcore.backends import cuda as cuda_backend
             self.device_name = cuda_backend.require(device)
-        self.model = model = Model(scene, precision, backend, neighbours)
+        self.model = model = Model(scene, precision, backend)
         ids, x, v = generate_particles(scene, model.walls)
         self._state = ParticleState.create(ids, x, v, np.full(len(ids), model.mass), model.dtype)
         self.n_particles = len(ids)
@@ -128,8 +163,57 @@ class Simulation:
                 state.extra[name] = np.zeros(state.x.shape[0], dtype=self.dtype)
 
     def set_parameter(self, key: str, value):
-        """Change a run-time settable value from the next step on (Model.set_parameter)."""
-        self.model.set_parameter(key, value)
+        """Change the value of scene key ``key`` (one that may change during a run, scene.LIVE) from
+        the next step on; ``value`` as the scene holds it (a tuple for a vector). ValueError if the
+        key cannot change during a run or the change would alter more than the Params."""
+        from sphcore.scene import SceneError, live_change, _toml_exact
+        try:
+            _, scene = live_change(self.scene, f"{key}={_toml_exact(value)}")
+        except SceneError as e:
+            raise ValueError(str(e)) from None
+        self.change_scene(scene)
+
+    def changed_model(self, scene: Scene) -> Model:
+        """The Model of ``scene``, a live change of this run's scene: ValueError naming what else the
+        change would alter (the compiled step, the grid, the walls), which no running step can follow."""
+        new = Model(scene, self.precision, self.backend)
+        old = self.model
+        changed = [name for name in sorted(vars(new)) if name not in LIVE_MODEL
+                   and not _same(getattr(old, name, None), getattr(new, name))]
+        if [term.name for term, _ in old.force_terms] != [term.name for term, _ in new.force_terms]:
+            changed.append("force_terms")
+        if changed:
+            what = sorted({MODEL_PARTS.get(name, name) for name in changed})
+            raise ValueError(f"it changes the compiled step or the world ({', '.join(what)}), which a running step "
+                             "cannot follow (set a new value, not 0 <-> > 0 for an optional term; or start a new run)")
+        return new
+
+    def change_scene(self, scene: Scene):
+        """Run on with ``scene``, which differs from this run's scene only in keys that may change
+        during a run (``scene.live_change``): the Params, the viscosity, the mass of new particles (a
+        reset's) and the force terms' values are rebuilt from it exactly as a new run of ``scene``
+        would build them, so a run changed after step k is bitwise a run resumed from step k's
+        checkpoint with the new values. ValueError (``changed_model``) leaves the run unchanged."""
+        new = self.changed_model(scene)
+        for name in LIVE_MODEL:
+            setattr(self.model, name, getattr(new, name))
+        stats = self.solver.stats
+        self.solver = SOLVERS[scene.sph.solver](self)  # its reference density is the new scene's
+        self.solver.stats = stats
+
+    def reset(self):
+        """Back to the initial particles: the scene's blocks (with the current values of the keys
+        changed during the run), t = 0 and a cold start (no previous step, carried arrays zero), as
+        a new run starts; the step count and the run's statistics go on. A peer then keeps its
+        block of them (nodes/peer.py take_block)."""
+        ids, x, v = generate_particles(self.scene, self.model.walls)
+        self.state = ParticleState.create(ids, x, v, np.full(len(ids), self.model.mass), self.model.dtype)
+        self.t = 0.0
+        self.dt = self.dt_prev = self.dt_flow = 0.0
+        self.prm_now = self.model.prm
+        stats = self.solver.stats
+        self.solver = SOLVERS[self.scene.sph.solver](self)
+        self.solver.stats = stats
 
     @staticmethod
     def grid_for(scene: Scene):

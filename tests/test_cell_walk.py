@@ -109,17 +109,12 @@ def test_walk_visits_the_list_in_order_with_ghost_rows():
     check_walk_equals_lists(grid, state)
 
 
-def _walk(sc, precision="f64"):
-    return Simulation(sc, precision, neighbours="walk")
-
-
 def test_a_walking_run_counts_the_neighbours_the_lists_hold():
     # Given the dam break advanced a few steps with lists, and the same particles in a walking run
-    sc = scene("dam_break", "particles.spacing=0.05")
-    lists = Simulation(sc, "f64")
+    lists = Simulation(scene("dam_break", "particles.spacing=0.05"), "f64")
     for _ in range(5):
         lists.step()
-    walk = _walk(sc)
+    walk = Simulation(scene("dam_break", "particles.spacing=0.05", "run.neighbours='walk'"), "f64")
     walk.state = ParticleState.create(*(getattr(lists.state, f)[:lists.state.n_owned].copy()
                                         for f in ("id", "x", "v", "m")), np.float64)
     lists.refresh()

@@ -1,10 +1,14 @@
 """Rerun destinations: a run records and streams at once; the web viewer listens on loopback only,
 on free ports (a named busy port is a clear error); replay serves a recording the same way."""
+import json
 import socket
 import subprocess
 import sys
 import time
 from pathlib import Path
+
+import numpy as np
+import pytest
 
 from launch.local import free_ports
 from nodes.rerun_sinks import choose_port, rerun_executable
@@ -24,9 +28,9 @@ def listening_addresses(port: int) -> set[str]:
     return found
 
 
-def image_count(rrd: Path) -> int:
+def frames(rrd: Path) -> dict:
     from nodes.recording import images
-    return len(images(rrd))
+    return images(rrd)
 
 
 def test_a_run_records_and_streams_to_a_running_viewer_at_once(tmp_path):
@@ -45,9 +49,29 @@ def test_a_run_records_and_streams_to_a_running_viewer_at_once(tmp_path):
     finally:
         receiver.terminate()
         receiver.wait(timeout=10)
-    # Then both the recording and the live stream hold every frame
-    assert image_count(tmp_path / "out" / "run.rrd") == 3
-    assert image_count(tmp_path / "live.rrd") == 3
+    # Then the recording and the live stream hold the same frames, every one, and the blueprint
+    from nodes.recording import blueprint, entity_steps
+    recorded, live = frames(tmp_path / "out" / "run.rrd"), frames(tmp_path / "live.rrd")
+    assert sorted(recorded) == sorted(live) == [10, 20, 30]
+    for step in recorded:
+        assert np.array_equal(recorded[step], live[step]), step
+    for rrd in (tmp_path / "out" / "run.rrd", tmp_path / "live.rrd"):
+        assert any(v["origin"] == "/composite" for v in blueprint(rrd)["views"]), rrd
+        assert entity_steps(rrd)["/fluid/points"] == [10, 20, 30]  # the point cloud is on by default
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())["viewer"]
+    assert summary["frames"] == 3 and summary["dropped_frames"] == 0
+    assert summary["record_mb"] == pytest.approx((tmp_path / "out" / "run.rrd").stat().st_size / 1e6, rel=0.2)
+    assert "MB per frame recorded" in done.stdout
+
+
+def test_serving_the_web_viewer_keeps_the_recording(tmp_path):
+    grpc, web = free_ports(2)
+    done = subprocess.run([sys.executable, "-m", "launch.cli", "run", *TINY, "--out", str(tmp_path / "out"),
+                           "--serve-web", "--web-port", str(web), "--grpc-port", str(grpc)], cwd=ROOT,
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert f"http://127.0.0.1:{web}/" in done.stdout
+    assert sorted(frames(tmp_path / "out" / "run.rrd")) == [10, 20, 30]
 
 
 def test_replay_serves_on_loopback_and_a_busy_port_is_a_clear_error(tmp_path):

@@ -1,14 +1,17 @@
-"""The viewer: recorded runs hold every entity for every rendered step; N peers' composite equals
-one peer's image; incomplete frames are composited and marked."""
+"""The viewer: recorded runs hold every entity for every rendered step and a blueprint that shows the
+composite's RGB; N peers' composite equals one peer's image; incomplete frames are composited and
+marked; a viewer behind Rerun drops frames instead of holding the run; the viewer follows camera
+switches and settings changed during the run."""
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from launch.cli import main
-from nodes.recording import entity_steps, images, text_logs
+from nodes.recording import blueprint, depth_images, entity_steps, images, text_logs
 from nodes.viewer import Viewer, frame_arrays, frame_from_arrays, open_recording
 from sphcore.render import Framelet
 
@@ -38,6 +41,28 @@ def test_a_recorded_run_holds_every_entity_for_every_rendered_step(one_peer):
     assert "/composite/status" not in steps  # every frame was complete
 
 
+def test_the_recording_carries_a_blueprint_that_shows_the_composite_rgb(one_peer):
+    bp = blueprint(one_peer / "run.rrd")
+    views = {v["name"]: v for v in bp["views"]}
+    # the composite: RGB visible, depth hidden (but there), in the widest column
+    comp = views["Composite"]
+    assert (comp["kind"], comp["origin"]) == ("2D", "/composite")
+    assert comp["hidden"] == ["/composite/depth"]
+    assert [3.0, 2.0] in [c["shares"] for c in bp["containers"]]
+    # a 3D view of the walls and the point cloud, an event log, the legend, a few plots
+    assert "/fluid/**" in views["3D (drag to orbit)"]["contents"] and views["3D (drag to orbit)"]["kind"] == "3D"
+    assert set(views["Events"]["contents"]) == {"/control", "/events", "/composite/status"}
+    assert views["Legend"]["origin"] == "/legend"
+    assert 4 <= sum(v["kind"] == "TimeSeries" for v in bp["views"]) <= 8
+    # what the blueprint shows is there: a JPEG composite, its depth where the image shows fluid
+    rgb, depth = images(one_peer / "run.rrd")[60], depth_images(one_peer / "run.rrd")[60]
+    from sphcore.render import BACKGROUND
+    fluid = depth > 0
+    assert rgb.shape[:2] == depth.shape and fluid.mean() > 0.02
+    assert (np.abs(rgb[fluid].astype(int) - BACKGROUND).max(axis=1) > 16).mean() > 0.95
+    assert text_logs(one_peer / "run.rrd", "/legend")[0].startswith("# Colour: speed")
+
+
 def test_two_peer_composite_equals_the_one_peer_image(one_peer, tmp_path):
     # Given the same run as 2 peer processes with a viewer process recording the composite
     done = subprocess.run([sys.executable, "-m", "launch.cli", "run", "configs/dam_break.toml", *DAM, "--peers", "2",
@@ -52,7 +77,10 @@ def test_two_peer_composite_equals_the_one_peer_image(one_peer, tmp_path):
     steps = entity_steps(tmp_path / "run.rrd")
     assert steps["/peers/1/rgb"] == [20, 40, 60] and steps["/stats/particles/peer1"] == [20, 40, 60]
     assert "/composite/status" not in steps
-    assert (tmp_path / "viewer.json").exists()
+    import json
+    shown = json.loads((tmp_path / "summary.json").read_text())["viewer"]  # from the viewer process
+    assert shown["frames"] == 3 and shown["dropped_frames"] == 0 and shown["composite_latency_ms"]["max"] > 0
+    assert shown["record_mb"] == pytest.approx((tmp_path / "run.rrd").stat().st_size / 1e6, rel=1e-3)
 
 
 def test_an_incomplete_frame_is_composited_from_what_arrived_and_marked(tmp_path):
@@ -67,19 +95,21 @@ def test_an_incomplete_frame_is_composited_from_what_arrived_and_marked(tmp_path
     v.add(7, 0, f, stats)
     v.add(7, 1, f, stats)          # a later frame completes: step 5 goes out first, marked
     v.expire()
-    assert v.frames == 2 and v.incomplete == 1
-    rec.flush()
+    v.close()
+    assert v.frames == 2 and v.incomplete == 1 and v.dropped == 0
     del rec, v
     assert text_logs(tmp_path / "r.rrd", "/composite/status") == [
         "step 5: incomplete frame, no framelet from peer(s) [1]"]
-    assert images(tmp_path / "r.rrd")[7][20, 10].tolist() == [200, 200, 200]
+    assert np.abs(images(tmp_path / "r.rrd")[7][21, 11].astype(int) - 200).max() <= 8  # JPEG
 
 
 def test_framelet_messages_round_trip_and_reject_mismatched_planes():
     f = Framelet(3, 1, 2, np.zeros((2, 5, 3), np.uint8), np.zeros((2, 5), np.float32), np.zeros((2, 5), np.int64))
-    arrays = frame_arrays(f, {"a": 1}, np.zeros((4, 3)))
-    g, stats, pts = frame_from_arrays(3, arrays)
-    assert (g.x0, g.y0, g.w, g.h, stats, pts.shape) == (1, 2, 5, 2, {"a": 1}, (4, 3))
+    arrays = frame_arrays(f, {"a": 1}, (np.zeros((4, 3)), np.full((4, 3), 9, np.uint8)))
+    g, stats, (xyz, rgb) = frame_from_arrays(3, arrays)
+    assert (g.x0, g.y0, g.w, g.h, stats, xyz.shape, rgb.tolist()[0]) == (1, 2, 5, 2, {"a": 1}, (4, 3), [9, 9, 9])
+    with pytest.raises(ValueError, match="point_colours"):
+        frame_from_arrays(3, dict(arrays, point_colours=np.zeros((3, 3), np.uint8)))
     arrays["rect"] = np.array([1, 2, 6, 2])
     with pytest.raises(ValueError, match="rectangle"):
         frame_from_arrays(3, arrays)
@@ -88,8 +118,10 @@ def test_framelet_messages_round_trip_and_reject_mismatched_planes():
 def test_a_viewer_joins_a_running_run_and_sees_the_same_frames(tmp_path):
     import re
 
+    from test_control import send
     from test_peers import Lines, sph
-    # Given a 2-peer run (with its own recording viewer)
+    # Given a 2-peer run (with its own recording viewer), paused after step 100 so that the second
+    # viewer surely joins while it runs (the run alone takes a few seconds)
     p = sph("run", "configs/dam_break.toml", "--peers", "2", "--steps", "900", "--out", str(tmp_path / "run"),
             "--set", "particles.spacing=0.04", "--set", "run.log_every=50", "--set", "render.every=50")
     log = Lines(p.stderr)
@@ -97,16 +129,24 @@ def test_a_viewer_joins_a_running_run_and_sees_the_same_frames(tmp_path):
     launch = next(line for line in log.lines if "endpoints" in line)
     run_id = re.search(r"run (\w+):", launch).group(1)
     endpoints = re.findall(r"(tls/[\d.]+:\d+)", launch)
-    # When a second viewer joins by connecting to the peers' endpoints
-    joined = subprocess.run([sys.executable, "-m", "launch.cli", "viewer", "configs/dam_break.toml", "--run-id",
-                             run_id, *sum((["--connect", e] for e in endpoints), []), "--world", "2",
-                             "--tls", str(tmp_path / "run" / "tls"), "--record",
-                             str(tmp_path / "joined.rrd"), "--set", "particles.spacing=0.04",
-                             "--set", "render.every=50", "--idle-timeout", "60"],
-                            cwd=ROOT, capture_output=True, text=True, timeout=300)
+    send(run_id, endpoints[0], tmp_path / "run" / "tls", "pause")
+    # When a second viewer joins by connecting to the peers' endpoints, and the run resumes
+    joined = subprocess.Popen([sys.executable, "-m", "launch.cli", "viewer", "configs/dam_break.toml", "--run-id",
+                               run_id, *sum((["--zenoh", e] for e in endpoints), []), "--world", "2",
+                               "--tls", str(tmp_path / "run" / "tls"), "--record",
+                               str(tmp_path / "joined.rrd"), "--set", "particles.spacing=0.04",
+                               "--set", "render.every=50", "--idle-timeout", "60"],
+                              cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert joined.stdout.readline().strip() == "viewer ready"
+        time.sleep(1.0)  # its subscription reaches the peers
+        send(run_id, endpoints[0], tmp_path / "run" / "tls", "resume")
+        out, err = joined.communicate(timeout=300)
+    finally:
+        joined.kill()
     # Then the run is undisturbed, and the joined viewer recorded the later frames identically
     assert p.wait(timeout=300) == 0, log.text()
-    assert joined.returncode == 0, joined.stderr
+    assert joined.returncode == 0, err
     mine, theirs = images(tmp_path / "joined.rrd"), images(tmp_path / "run" / "run.rrd")
     assert len(mine) >= 3 and max(mine) == 900 and min(mine) > 100
     # A frame whose second framelet came more than frame_timeout (2 s) after the first is composited
@@ -122,3 +162,120 @@ def test_a_viewer_joins_a_running_run_and_sees_the_same_frames(tmp_path):
 def incomplete_steps(rrd: Path) -> set[int]:
     import re
     return {int(re.match(r"step (\d+):", t).group(1)) for t in text_logs(rrd, "/composite/status")}
+
+
+class SlowRerun:
+    """A recording stream whose channel blocks (a live viewer that cannot keep up): each composite
+    takes ``delay`` s to log. Records the steps whose composite went out."""
+
+    def __init__(self, delay: float):
+        self.delay, self.logged, self.step = delay, [], None
+
+    def set_time(self, timeline, sequence=None, duration=None):
+        if timeline == "step":
+            self.step = sequence
+
+    def log(self, entity, *args, **kwargs):
+        if entity == "composite/rgb":
+            time.sleep(self.delay)
+            self.logged.append(self.step)
+
+    def send_blueprint(self, *args, **kwargs):
+        pass
+
+    def flush(self, timeout_sec=None):
+        pass
+
+    def disconnect(self):
+        pass
+
+
+def test_a_viewer_behind_rerun_drops_frames_instead_of_holding_the_run():
+    # Given a viewer whose Rerun channel takes 0.3 s per frame
+    sc = scene("tiny")
+    rec = SlowRerun(0.3)
+    v = Viewer(sc, ((0, 0, 0), (0.15, 0.2, 0.15)), rec, world=1, particles=12)
+    f = Framelet(0, 10, 20, np.full((3, 4, 3), 200, np.uint8), np.ones((3, 4), np.float32), np.arange(12).reshape(3, 4))
+    stats = {"sim_time": 0.1, "particles": 12, "bytes_sent": 0, "stage_ms": {}, "kinetic_energy": 0.0,
+             "max_density_deviation": 0.0, "wall_time": time.time()}
+    # When frames come 10 times faster than that (a control line rides on frame 5)
+    longest = 0.0
+    for step in range(20):
+        t = time.perf_counter()
+        v.add(step, 0, f, dict(stats, controls=["pause"] if step == 5 else []))
+        longest = max(longest, time.perf_counter() - t)
+        time.sleep(0.03)
+    v.close()
+    # Then adding a frame never waited for Rerun, frames were dropped and counted, the newest shown
+    assert longest < 0.1, longest
+    assert v.dropped > 5 and v.frames + v.dropped == 20 and v.frames == len(rec.logged)
+    assert rec.logged[-1] == 19 and rec.logged == sorted(rec.logged)
+    assert v.summary()["dropped_frames"] == v.dropped
+
+
+def test_the_viewer_follows_a_camera_switch_and_a_changed_setting(tmp_path):
+    import dataclasses
+
+    from sphcore.render import SceneRenderer
+    from sphcore.scene import RenderCamera
+    # Given a scene with a second camera, viewed from the default one
+    sc = scene("tiny")
+    sc = dataclasses.replace(sc, render=dataclasses.replace(sc.render, cameras=[
+        RenderCamera(name="side", eye=(0.6, 0.1, 0.075), target=(0.075, 0.1, 0.075))]))
+    box = ((0.0, 0.0, 0.0), (0.15, 0.2, 0.15))
+    rec = open_recording("test", tmp_path / "r.rrd")
+    v = Viewer(sc, box, rec, world=1, particles=12)
+    empty = Framelet(0, 0, 0, np.zeros((0, 0, 3), np.uint8), np.zeros((0, 0), np.float32), np.zeros((0, 0), np.int64))
+    stats = {"sim_time": 0.1, "particles": 12, "bytes_sent": 0, "stage_ms": {}, "kinetic_energy": 0.0,
+             "max_density_deviation": 0.0, "wall_time": time.time(), "camera": "default", "color_by": "speed",
+             "range": [0.0, 2.0]}
+    v.add(1, 0, empty, stats)
+    # When the peers switch camera, colour by density and change the viscosity (sph control)
+    v.add(2, 0, empty, dict(stats, camera="side", color_by="density", range=[990.0, 1010.0],
+                            controls=["camera side", "color_by density", "set sph.alpha = 0.5"]))
+    v.close()
+    del rec
+    # Then the outline is drawn from the new camera, and the info, legend and events say what changed
+    side = SceneRenderer(sc, *box)
+    side.camera_name = "side"
+    expected_side, expected_default = side.image([])[0], SceneRenderer(sc, *box).image([])[0]
+    got = images(tmp_path / "r.rrd")
+    assert np.abs(got[2].astype(int) - expected_side).mean() < 2.0
+    assert np.abs(got[1].astype(int) - expected_default).mean() < 2.0
+    assert np.abs(expected_side.astype(int) - expected_default).mean() > 2.0
+    info = text_logs(tmp_path / "r.rrd", "/info")[-1]
+    assert "alpha = 0.5" in info and "step 2: set sph.alpha = 0.5" in info
+    assert text_logs(tmp_path / "r.rrd", "/legend")[-1].startswith("# Colour: density")
+    assert "step 2: camera side" in text_logs(tmp_path / "r.rrd", "/events")
+
+
+def test_obstacles_are_drawn_into_the_composite_by_depth():
+    from nodes.frames import domain_box
+    # Given the obstacle scene (a sphere in a tilted tank) and a framelet filling the screen
+    sc = scene("obstacle", "particles.spacing=0.05")
+    box = domain_box(sc)
+    v = Viewer(sc, box, SlowRerun(0.0), world=1, particles=1)
+    cam = v.renderer.camera
+    centre = np.array([0.15, -0.12, 0.0])  # the sphere's centre in the tank frame ...
+    from sphcore.boundaries import container_frame
+    c, R = container_frame(sc)
+    centre = c + R @ centre                # ... in the world
+    eye, right, up, forward = cam.basis()
+    rel = centre - eye
+    px = int(0.5 * cam.width + (rel @ right) * cam.focal / (rel @ forward))
+    py = int(0.5 * cam.height - (rel @ up) * cam.focal / (rel @ forward))
+    distance = float(rel @ forward)
+
+    def fluid_at(depth):
+        return Framelet(0, 0, 0, np.full((cam.height, cam.width, 3), [250, 0, 0], np.uint8),
+                        np.full((cam.height, cam.width), depth, np.float32),
+                        np.arange(cam.width * cam.height).reshape(cam.height, cam.width))
+    # When the fluid is behind the sphere, and when it is in front
+    behind_rgb, behind_depth = v.image([fluid_at(distance + 1.0)])
+    front_rgb, _ = v.image([fluid_at(distance - 0.2)])
+    v.close()
+    # Then the sphere hides the fluid behind it (at its front surface's depth), and fluid in front hides it
+    assert behind_rgb[py, px, 0] < 250 and abs(int(behind_rgb[py, px, 1]) - int(behind_rgb[py, px, 2])) < 60
+    assert abs(float(behind_depth[py, px]) - (distance - 0.08)) < 0.01
+    assert front_rgb[py, px].tolist() == [250, 0, 0]
+    assert (behind_rgb[..., 0] < 250).mean() > 0.003  # the sphere covers some pixels, not one

@@ -1,0 +1,172 @@
+"""The walls as the viewer draws them: meshes for the 3D view, and an obstacle layer for the composite.
+
+The peers' splat renderer (sphcore/render.py) draws particles only. Obstacles are static, so the
+viewer draws them once per camera and merges them into every composite by depth, the same rule
+the peers' framelets follow: a pixel shows an obstacle where the obstacle is nearer than the fluid,
+and fluid in front of an obstacle hides it. The layer is made by sphere tracing the obstacles'
+signed distance (spheres and boxes analytically, meshes from the same signed-distance grid the
+walls use, sphcore/mesh_sdf.py), shaded with the splat renderer's light. Only obstacles are drawn
+this way; the container is the outline (sphcore.render.draw_box) and, in 3D, a mesh.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+OBSTACLE_COLOUR = np.array([176, 160, 136], dtype=np.float64)
+CONTAINER_RGBA = [120, 120, 130, 110]
+OBSTACLE_RGBA = [176, 160, 136, 255]
+_LIGHT = (-0.35, 0.45, -0.82)  # view space, as in sphcore/render.py (_splat)
+
+
+def _placed(scene):
+    """[(shape, centre, R, obstacle)] of the scene's obstacles in world coordinates."""
+    from sphcore.boundaries import container_frame, rotation_matrix
+    c, R = container_frame(scene)
+    s = scene.domain.scale
+    out = []
+    for ob in scene.obstacles:
+        centre, Rob = np.array(ob.center, dtype=float), rotation_matrix(ob.rotation)
+        if ob.frame == "container":
+            centre, Rob = c + R @ (centre * s), R @ Rob
+        out.append((ob.shape, centre, Rob, ob))
+    return out
+
+
+class _MeshDistance:
+    """Trilinear signed distance of a placed mesh from its grid; outside the grid, the distance to
+    the grid's box (a lower bound, so sphere tracing never steps through the mesh)."""
+
+    def __init__(self, origin, step, values):
+        self.origin, self.step, self.values = np.asarray(origin, float), float(step), values
+        self.hi = self.origin + step * (np.array(values.shape) - 1)
+
+    def __call__(self, p):
+        outside = np.linalg.norm(np.maximum(np.maximum(self.origin - p, p - self.hi), 0.0), axis=-1)
+        g = np.clip((p - self.origin) / self.step, 0.0, np.array(self.values.shape) - 1.000001)
+        i = np.floor(g).astype(np.int64)
+        f = g - i
+        v = self.values
+        d = 0.0
+        for dx in (0, 1):
+            for dy in (0, 1):
+                for dz in (0, 1):
+                    w = (f[:, 0] if dx else 1 - f[:, 0]) * (f[:, 1] if dy else 1 - f[:, 1]) * \
+                        (f[:, 2] if dz else 1 - f[:, 2])
+                    d = d + w * v[i[:, 0] + dx, i[:, 1] + dy, i[:, 2] + dz]
+        return np.where(outside > 0, outside + np.maximum(d, 0.0), d)
+
+
+def obstacle_distance(scene):
+    """f(points (n, 3)) -> (n,) signed distance to the nearest obstacle, or None without obstacles."""
+    parts = []
+    for shape, centre, R, ob in _placed(scene):
+        if shape == "sphere":
+            parts.append(lambda p, c=centre, r=ob.radius: np.linalg.norm(p - c, axis=-1) - r)
+        elif shape == "box":
+            half = 0.5 * np.asarray(ob.size, dtype=float)
+
+            def box(p, c=centre, R=R, half=half):
+                q = np.abs((p - c) @ R) - half
+                return np.linalg.norm(np.maximum(q, 0.0), axis=-1) + np.minimum(q.max(axis=-1), 0.0)
+            parts.append(box)
+        else:
+            from sphcore.mesh_sdf import signed_distance_grid
+            from sphcore.scene import mesh_path
+            dx = scene.particles.spacing
+            H = scene.sph.support * dx
+            parts.append(_MeshDistance(*signed_distance_grid(mesh_path(scene, ob), centre, ob.scale * scene.domain.scale,
+                                                             R, 0.5 * dx, 2.0 * H + 2.0 * dx)))
+    if not parts:
+        return None
+    return lambda p: np.min(np.stack([f(p) for f in parts]), axis=0)
+
+
+def obstacle_layer(scene, camera, box, iterations: int = 128):
+    """(rgb (H, W, 3) uint8, depth (H, W) float32, +inf where no obstacle) of the scene's obstacles
+    seen by ``camera`` (sphcore.render.Camera), or None if the scene has none."""
+    sdf = obstacle_distance(scene)
+    if sdf is None:
+        return None
+    eye, right, up, forward = camera.basis()
+    w, h, focal = camera.width, camera.height, camera.focal
+    px, py = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    d = forward + ((px - 0.5 * w) / focal)[..., None] * right - ((py - 0.5 * h) / focal)[..., None] * up
+    d = (d / np.linalg.norm(d, axis=-1, keepdims=True)).reshape(-1, 3)
+    lo, hi = np.asarray(box[0], float), np.asarray(box[1], float)
+    far = float(np.linalg.norm(np.maximum(np.abs(lo - eye), np.abs(hi - eye)))) * 1.5 + 1e-9
+    t = np.zeros(len(d))
+    active = np.ones(len(d), dtype=bool)
+    hit = np.zeros(len(d), dtype=bool)
+    scale = float(np.linalg.norm(hi - lo)) or 1.0
+    for _ in range(iterations):
+        idx = np.nonzero(active)[0]
+        if not len(idx):
+            break
+        dist = sdf(eye + t[idx, None] * d[idx])
+        eps = np.maximum(1e-5 * scale, 0.5 * t[idx] / focal)  # half a pixel's footprint
+        done = dist < eps
+        hit[idx[done]] = True
+        t[idx] += np.where(done, 0.0, np.maximum(dist, 0.25 * eps))
+        active[idx[done | (t[idx] > far)]] = False
+    rgb = np.zeros((h * w, 3), dtype=np.uint8)
+    depth = np.full(h * w, np.inf, dtype=np.float32)
+    idx = np.nonzero(hit)[0]
+    if len(idx):
+        p = eye + t[idx, None] * d[idx]
+        e = 1e-4 * scale
+        n = np.stack([sdf(p + e * axis) - sdf(p - e * axis) for axis in np.eye(3)], axis=1)
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+        light = _LIGHT[0] * right + _LIGHT[1] * up + _LIGHT[2] * forward
+        shade = 0.3 + 0.7 * np.maximum(0.0, n @ light)
+        rgb[idx] = np.clip(OBSTACLE_COLOUR[None] * shade[:, None], 0, 255).astype(np.uint8)
+        depth[idx] = (t[idx] * (d[idx] @ forward)).astype(np.float32)
+    return rgb.reshape(h, w, 3), depth.reshape(h, w)
+
+
+def merge_layer(rgb, depth, layer):
+    """Put the obstacle layer into a composite (in place): obstacle pixels nearer than the fluid."""
+    if layer is None:
+        return
+    orgb, odepth = layer
+    nearer = odepth < depth
+    rgb[nearer] = orgb[nearer]
+    depth[nearer] = odepth[nearer]
+
+
+def wall_meshes(scene):
+    """{entity: rr.Mesh3D} of the container (unless it is the plain box the outline already draws)
+    and every obstacle (meshes as placed in the scene), for the 3D view; PyVista makes the primitives."""
+    import pyvista as pv
+    import rerun as rr
+
+    from sphcore.boundaries import container_frame
+    c, R = container_frame(scene)
+    dom, s = scene.domain, scene.domain.scale
+    shapes = {}
+    if dom.container == "sphere":
+        shapes["container"] = (pv.Sphere(radius=dom.radius * s), c, np.eye(3))
+    elif dom.container == "cylinder":
+        shapes["container"] = (pv.Cylinder(radius=0.5 * dom.size[0] * s, height=dom.size[1] * s,
+                                           direction=(0, 1, 0), capping=False), c, R)
+    elif dom.container == "box" and scene.dim == 3 and np.any(np.abs(np.asarray(dom.rotation)) > 0):
+        half = 0.5 * np.asarray(dom.size, dtype=float) * s
+        shapes["container"] = (pv.Box(bounds=np.ravel(np.stack([-half, half], 1))), c, R)
+    for i, (shape, centre, Rob, ob) in enumerate(_placed(scene)):
+        if shape == "sphere":
+            shapes[f"obstacles/{i}"] = (pv.Sphere(radius=ob.radius), centre, np.eye(3))
+        elif shape == "box":
+            half = 0.5 * np.asarray(ob.size, dtype=float)
+            shapes[f"obstacles/{i}"] = (pv.Box(bounds=np.ravel(np.stack([-half, half], 1))), centre, Rob)
+        else:
+            from sphcore.mesh_sdf import placed_mesh
+            from sphcore.scene import mesh_path
+            shapes[f"obstacles/{i}"] = (placed_mesh(mesh_path(scene, ob), centre, ob.scale * s, Rob), np.zeros(3),
+                                        np.eye(3))
+    out = {}
+    for name, (mesh, centre, rot) in shapes.items():
+        tri = mesh.triangulate()
+        faces = np.asarray(tri.faces).reshape(-1, 4)[:, 1:]
+        pts = np.asarray(tri.points, dtype=np.float64) @ np.asarray(rot).T + centre
+        out[name] = rr.Mesh3D(vertex_positions=pts.astype(np.float32), triangle_indices=faces.astype(np.uint32),
+                              albedo_factor=CONTAINER_RGBA if name == "container" else OBSTACLE_RGBA)
+    return out

@@ -1,0 +1,29 @@
+"""Progress while numba compiles (launch/compiling.py): one line when a compilation starts, the
+elapsed time while it goes on, the total at the end; nothing for a function already compiled."""
+import time
+
+from launch.compiling import START, report_compiling
+
+
+def test_a_compilation_is_reported_with_its_elapsed_time():
+    from numba import njit
+    said = []
+    report_compiling(every=0.05, say=said.append)
+    namespace = {}
+    # a function numba has never seen (no cache), which compiles for a moment
+    exec("def f(a):\n    s = 0.0\n" + "".join(f"    s += a[{i}] * {i}.5\n" for i in range(200)) + "    return s",
+         namespace)
+    f = njit(namespace["f"])
+    import numpy as np
+    assert f(np.ones(200)) > 0
+    deadline = time.monotonic() + 10
+    while not any(s.startswith("kernels compiled in") for s in said) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert said[0] == f"{START} ..."
+    assert any(s.startswith("compiling kernels: ") and s.endswith(" s so far") for s in said)
+    assert said[-1].startswith("kernels compiled in") and "cached for the next runs" in said[-1]
+    # once compiled, a call says nothing more
+    n = len(said)
+    f(np.ones(200))
+    time.sleep(4.0)
+    assert len(said) == n
