@@ -44,8 +44,8 @@ VEC = (2, 3)  # vectors may have 2 (2D scenes) or 3 components
 
 # Which keys may change while a run goes on (``sph control OUT set KEY=VALUE``, and ``sph run --resume
 # DIR --set KEY=VALUE``): LIVE ones, applied by every peer after the same step, rebuild only the
-# Params and the scene the step reads (sphcore/solver.py ``Simulation.change_scene`` checks that
-# nothing else changed). Every other key names why not.
+# Params and the scene the step reads, or switch optional stages on or off (sphcore/solver.py
+# ``Simulation.change_scene`` checks that nothing else changed). Every other key names why not.
 LIVE = True
 COMPILED = "changes the compiled step (a kernel, a stage choice or which stages run)"
 PARTICLES = "changes the particle set or the initial particles (spacing, blocks, initial flow)"
