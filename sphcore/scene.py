@@ -264,7 +264,7 @@ class Render:
                                      "(speed 0..c0/10, density rho0 +-2 %, pressure 0..0.02 rho0 c0^2)", length=(2,))
     radius: float = spec(0.6, "splat radius in spacings", range=(0.05, 10.0))
     camera: str = spec("default", "active camera: 'default' (frames the domain) or a [[render.cameras]] name")
-    points_every: int = spec(0, "also log every k-th particle (by id) as a 3D point cloud (0 = off)",
+    points_every: int = spec(0, "log every k-th particle (by id) as a 3D point cloud (0 = about 3000 points in all)",
                              range=(0, 10**9))
     cameras: list = spec([], "extra named cameras ([[render.cameras]])")
 
