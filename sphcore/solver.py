@@ -16,6 +16,7 @@ from sphcore import stages as st
 from sphcore.backends import cpu
 from sphcore.choices import Integrator
 from sphcore.halo import NULL_HALO
+from sphcore.health import Health
 from sphcore.initial import generate_particles
 from sphcore.model import Model
 from sphcore.scene import Scene
@@ -115,6 +116,7 @@ class Simulation:
             self.grid = self.engine.grid  # the device grid: counts, permutation downloaded on demand
         else:
             self.engine = cpu.CpuStages(self)
+        self.health = Health(self)  # unconverged solves, the energy watchdog (health.py)
 
     @property
     def prm(self):
@@ -292,6 +294,7 @@ class Simulation:
         self.dt = dt
         self.t += dt
         self.step_index += 1
+        yield from self.health.after_step(halo)                   # every K steps: the energy watchdog
 
     def _fields(self, halo, prm, commit):
         """Exchange 1, the neighbour lists, density and pressure (DFSPH: its factors and the
@@ -354,8 +357,8 @@ class Simulation:
 
     def _fail(self, cause: str, density: bool = False, rows: str = "bad"):
         """Raise SimulationError naming the step, the cause and the particles concerned: the
-        over-compressed ones (density), the fastest and most accelerated ten (rows="fastest"), or
-        those holding NaN/Inf."""
+        over-compressed ones (density), the fastest and most accelerated ten (rows="fastest"), the
+        ten farthest from the solve's reference density (rows="densest"), or those holding NaN/Inf."""
         s = self.state
         n = s.n_owned
         if density:
@@ -363,6 +366,8 @@ class Simulation:
         elif rows == "fastest":
             score = np.einsum("ij,ij->i", s.v[:n], s.v[:n]) + np.einsum("ij,ij->i", s.a[:n], s.a[:n]) * self.h
             rows = np.argsort(-score, kind="stable")[:10]
+        elif rows == "densest":
+            rows = np.argsort(-np.abs(s.rho[:n] / self.rho_ref - 1.0), kind="stable")[:10]
         else:
             finite = np.isfinite(s.x[:n]).all(1) & np.isfinite(s.v[:n]).all(1) & np.isfinite(s.a[:n]).all(1)
             rows = np.nonzero(~(finite & np.isfinite(s.rho[:n])))[0]
