@@ -485,7 +485,8 @@ class Viewer:
         self.frames += 1
         if self.frames == 1 and self.announce is not None:
             total = "" if not self.expected_frames else \
-                f", about {size * self.expected_frames / 1e6:.0f} MB for the run's {self.expected_frames} frames"
+                f", about {size * self.expected_frames / 1e6:.2g} MB for the run's {self.expected_frames} " \
+                f"frame{'s' if self.expected_frames != 1 else ''}"
             self.announce(f"sph viewer: about {size / 1e6:.2f} MB per frame recorded{total}")
 
 
