@@ -27,7 +27,8 @@ centre of mass above the floor). The watchdog is off, and says why in summary.js
 the whole story: surface tension (surface energy), vorticity confinement (it adds energy by
 design), a body force along a periodic axis or a central force on a periodic domain (no
 potential), or no energy at all (at rest without body forces). A change of the scene during the
-run (``sph control set``) or a reset takes a new reference.
+run (``sph control set``) or a reset takes a new reference, and so does a resumed run (its first
+step after the checkpoint).
 
 Each particle's energy is rounded to an integer multiple of ENERGY_QUANTUM_BITS below the scene's
 energy bound (its total mass times (|g + f_ext| L + omega^2 L^2 / 2 + c0^2 / 2), L the grid box's
@@ -93,6 +94,7 @@ class Health:
         self.warnings = {"unconverged": 0, "energy": 0}  # warnings logged (rank 0) or due (other ranks)
         self.energy = {"watchdog": "on"}
         self._reference = None   # (scene, t) the reference was taken for
+        self._last_t = 0.0       # the time of the previous step (a reset sets t back)
         self._warned_growth = 0.0
 
     # -- unconverged DFSPH solves --------------------------------------------------------------
@@ -181,9 +183,10 @@ class Health:
         the closed scene's mechanical energy against its reference."""
         sim = self.sim
         scene = sim.scene
-        if self._reference is not None and (self._reference[0] is not scene or sim.t < self._reference[1]):
+        if self._reference is not None and (self._reference[0] is not scene or sim.t < self._last_t):
             self._reference = None  # the scene changed during the run, or a reset: a new reference
             self._warned_growth = 0.0
+        self._last_t = sim.t
         off = self._off_reason(scene)
         if off is not None:
             self.energy = {"watchdog": off}

@@ -77,3 +77,16 @@ def test_warnings_are_counted_in_summary_json(tmp_path):
     assert summary["solver"]["density"]["unconverged_steps"] == 12
     assert summary["health"]["warnings"] == {"unconverged": 2, "energy": 0}  # the 1st and the 10th
     assert summary["health"]["on_unconverged"] == "warn"
+
+
+def test_a_reset_or_a_live_change_takes_a_new_energy_reference():
+    sim = Simulation(scene("tiny", *WATCHED), "f64")
+    for _ in range(6):
+        sim.step()
+    assert sim.health.energy["reference_step"] == 1
+    sim.set_parameter("forces.gravity", (0.0, -5.0, 0.0))  # another potential: another reference
+    sim.step()
+    assert sim.health.energy["reference_step"] == 7
+    sim.reset()  # the initial particles again, t = 0
+    sim.step()
+    assert sim.health.energy["reference_step"] == 8 and sim.health.energy["reference_t"] == sim.t
