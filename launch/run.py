@@ -54,7 +54,10 @@ class LocalFrames:
         return self.view.summary()
 
     def end(self, step: int):
-        pass
+        if self.view.stalled:  # the outputs are written; Rerun would wait for the live viewer for ever
+            from nodes.viewer import exit_now
+            exit_now(0, f"sph run: step {step}: outputs written; the live Rerun viewer stopped reading, exiting "
+                        "without waiting for it")
 
 
 class StopOnSignal:

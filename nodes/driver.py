@@ -40,7 +40,7 @@ from sphcore import __version__, checkpoint
 from sphcore.halo import PeerHalo
 from sphcore.output import write_final, write_scene, write_summary
 from sphcore.scene import Scene
-from sphcore.solver import Simulation
+from sphcore.solver import Simulation, SimulationError
 from sphcore.state import merge_by_id
 
 log = logging.getLogger("sph.run")
@@ -309,6 +309,12 @@ def drive(peer: PeerRun, plan: RunPlan, frames: FrameSink | None = None):
     try:
         loop = yield from advance(sim, halo, scene, plan.steps, plan.until, plan.progress and rank == 0,
                                   on_step=on_step, stop=plan.stop)
+    except SimulationError as e:  # a health stop: summary.json says so; no final.npz (the step is half done)
+        if plan.out is not None and rank == 0:
+            write_summary(plan.out / "summary.json", dict(
+                progress_summary(sim, scene, world, peer.t_start, "stopped"), stopped=str(e),
+                health=sim.health.summary(), controls=[list(c) for c in controls.applied]))
+        raise
     finally:
         if frames is not None:
             frames.close()
@@ -567,6 +573,7 @@ def make_summary(sim: Simulation, scene: Scene, loop: dict, t_setup: float, wall
         "leaks": sim.leaks,
         "max_compression": sim.max_compression,
         "kinetic_energy": sim.kinetic_energy(),
+        "health": sim.health.summary(),
         "bytes_sent": 0,
         "machine": {"python": platform.python_version(), "platform": platform.platform(),
                     "numba": numba.__version__, "numpy": np.__version__},

@@ -57,7 +57,8 @@ def _image_rows(path: Path, entity: str, raw: str, encoded: str):
                 else:
                     yield step, data.view(np.float32).reshape(f["height"], f["width"])
         elif f"{encoded}:blob" in names:
-            meters = batch.column(f"{encoded}:meter").to_pylist() if f"{encoded}:meter" in names else [None] * len(steps)
+            meter_column = f"{encoded}:meter"
+            meters = batch.column(meter_column).to_pylist() if meter_column in names else [None] * len(steps)
             for step, blob, meter in zip(steps, batch.column(f"{encoded}:blob").to_pylist(), meters):
                 data = _first(blob)
                 picture = np.asarray(Image.open(io.BytesIO(bytes(data))))

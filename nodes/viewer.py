@@ -188,6 +188,32 @@ def blueprint(scene, world: int, camera=None):
         collapse_panels=True)
 
 
+_HELD = []  # recording streams stuck on a live viewer that stopped reading: never dropped (dropping flushes)
+
+
+def let_rerun_go(rec=None):
+    """Do not wait for a stalled live viewer: Rerun flushes a stream without a time limit when it
+    is dropped and at exit, so a viewer that stopped reading would hold this process for ever.
+    The stream is kept (not dropped) and Rerun's exit hook removed; ``exit_now`` ends the process."""
+    import atexit
+
+    import rerun
+    atexit.unregister(rerun.rerun_shutdown)
+    if rec is not None:
+        _HELD.append(rec)
+
+
+def exit_now(code: int, message: str):
+    """End a process whose Rerun stream is stuck (``_HELD``), its outputs written: say why, flush the
+    standard streams, exit without running the finalizers that would wait for the stream."""
+    import os
+    import sys
+    print(message, file=sys.stderr, flush=True)
+    sys.stdout.flush()
+    logging.shutdown()
+    os._exit(code)
+
+
 class Viewer:
     """Composites frames of ``world`` peers and logs them to ``rec`` (a Rerun RecordingStream).
     ``announce``: where the recording size estimate goes (a line after the first frame)."""
@@ -205,6 +231,7 @@ class Viewer:
         self.frames = 0          # frames logged
         self.incomplete = 0
         self.dropped = 0         # complete frames dropped because the writer was behind
+        self.stalled = False     # Rerun did not take the last frames at the end (a stalled live viewer)
         self.latency_ms = []     # per logged frame: newest framelet's publication -> logged
         self.frame_bytes = []    # per logged frame: bytes of its encoded images and points
         self.changes = []        # (step, control text) of the settings changed
@@ -285,13 +312,20 @@ class Viewer:
         self.flush()
         self._queue.put(None)
         self._writer.join(timeout=timeout)
-        self.rec.flush(timeout_sec=timeout)
+        try:
+            self.rec.flush(timeout_sec=timeout)
+        except RuntimeError as e:  # a live viewer that stopped reading holds the stream
+            log.warning("viewer: Rerun did not take the last frames within %g s (%s): a live viewer that "
+                        "stopped reading; not waiting for it", timeout, e)
+            self.stalled = True
+            let_rerun_go(self.rec)
+            return
         self.rec.disconnect()
 
     def summary(self) -> dict:
         """summary.json's "viewer": frames, drops, latency, recorded size."""
         out = {"frames": self.frames, "incomplete_frames": self.incomplete, "dropped_frames": self.dropped,
-               "record": str(self.record) if self.record else None}
+               "record": str(self.record) if self.record else None, "stalled": self.stalled}
         if self.latency_ms:
             out["composite_latency_ms"] = {"median": float(np.median(self.latency_ms)),
                                            "max": float(np.max(self.latency_ms))}
@@ -451,7 +485,8 @@ class Viewer:
         self.frames += 1
         if self.frames == 1 and self.announce is not None:
             total = "" if not self.expected_frames else \
-                f", about {size * self.expected_frames / 1e6:.0f} MB for the run's {self.expected_frames} frames"
+                f", about {size * self.expected_frames / 1e6:.2g} MB for the run's {self.expected_frames} " \
+                f"frame{'s' if self.expected_frames != 1 else ''}"
             self.announce(f"sph viewer: about {size / 1e6:.2f} MB per frame recorded{total}")
 
 
@@ -531,9 +566,16 @@ def run_viewer(scene, run_id: str, listen: list[str], connect: list[str], rec, b
         session.close()
         if state["viewer"] is not None:
             state["viewer"].close()
-        rec.flush()
+        else:
+            try:
+                rec.flush(timeout_sec=10.0)
+            except RuntimeError:
+                let_rerun_go(rec)
     v = state["viewer"]
     if stats_path is not None and v is not None:
         write_summary(stats_path, dict(v.summary(), note="latency: from the newest framelet's publication to the "
                                                          "composite being logged (same-machine clocks)"))
+    if _HELD:
+        exit_now(0, f"sph viewer: {0 if v is None else v.frames} frames; the live Rerun viewer stopped reading, "
+                    "not waiting for it (the recording file has what it received)")
     return 0 if v is None else v.frames

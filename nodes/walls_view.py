@@ -74,8 +74,9 @@ def obstacle_distance(scene):
             from sphcore.scene import mesh_path
             dx = scene.particles.spacing
             H = scene.sph.support * dx
-            parts.append(_MeshDistance(*signed_distance_grid(mesh_path(scene, ob), centre, ob.scale * scene.domain.scale,
-                                                             R, 0.5 * dx, 2.0 * H + 2.0 * dx)))
+            grid = signed_distance_grid(mesh_path(scene, ob), centre, ob.scale * scene.domain.scale, R, 0.5 * dx,
+                                        2.0 * H + 2.0 * dx)  # the walls' own grid (sphcore/boundaries.py)
+            parts.append(_MeshDistance(*grid))
     if not parts:
         return None
     return lambda p: np.min(np.stack([f(p) for f in parts]), axis=0)

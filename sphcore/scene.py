@@ -44,8 +44,8 @@ VEC = (2, 3)  # vectors may have 2 (2D scenes) or 3 components
 
 # Which keys may change while a run goes on (``sph control OUT set KEY=VALUE``, and ``sph run --resume
 # DIR --set KEY=VALUE``): LIVE ones, applied by every peer after the same step, rebuild only the
-# Params and the scene the step reads (sphcore/solver.py ``Simulation.change_scene`` checks that
-# nothing else changed). Every other key names why not.
+# Params and the scene the step reads, or switch optional stages on or off (sphcore/solver.py
+# ``Simulation.change_scene`` checks that nothing else changed). Every other key names why not.
 LIVE = True
 COMPILED = "changes the compiled step (a kernel, a stage choice or which stages run)"
 PARTICLES = "changes the particle set or the initial particles (spacing, blocks, initial flow)"
@@ -113,6 +113,13 @@ class SPH:
                                        "rho0 is below this (0 = no divergence solve)", range=(0.0, 1.0), control=LIVE)
     max_iterations: int = spec(100, "dfsph: most iterations of either solve in one step", range=(1, 10_000),
                                control=LIVE)
+    on_unconverged: str = spec("warn", "dfsph: a solve that ends at max_iterations above its tolerance: warn (logged "
+                               "at the 1st, 10th, 100th ... such step; the run stops once more than "
+                               "max_unconverged_fraction of the steps are) or stop (at the first, exit code 3)",
+                               choices=("warn", "stop"), control=AT_START)
+    max_unconverged_fraction: float = spec(0.5, "dfsph, on_unconverged = warn: stop (exit code 3) once more than this "
+                                           "fraction of a solve's steps ended unconverged, judged from its 20th "
+                                           "step on (1 = never stop)", range=(0.0, 1.0), control=AT_START)
     density: str = spec("summation", "density: summation (rho = sum m W, from the positions) or continuity "
                         "(integrated D rho/Dt with delta-SPH diffusion: smooth pressure at rest; wcsph only)",
                         choices=("summation", "continuity"), control=COMPILED)
@@ -232,6 +239,16 @@ class Run:
                           range=(0, 10**9), control=AT_START)
     max_density_ratio: float = spec(3.0, "stop with a diagnostic if some rho/rho0 exceeds this",
                                     range=(1.0, math.inf), min_exclusive=True, control=LIVE)
+    energy_check_every: int = spec(100, "energy watchdog: steps between checks of a closed scene's mechanical energy "
+                                        "(kinetic + potential in the body forces; 0 = off)", range=(0, 10**9),
+                                   control=AT_START)
+    energy_growth: float = spec(0.25, "energy watchdog: act when the mechanical energy grows by more than this "
+                                "fraction of its scale (the energy the fluid can release: kinetic + potential "
+                                "above the lowest point) since the start (0 = off)", range=(0.0, math.inf),
+                                control=AT_START)
+    on_energy_growth: str = spec("warn", "energy watchdog: warn (again at each doubling of the growth) or stop "
+                                 "(exit code 3) when the growth exceeds energy_growth", choices=("warn", "stop"),
+                                 control=AT_START)
 
 
 @dataclass(frozen=True)
@@ -268,7 +285,7 @@ class Render:
                                      "(speed 0..c0/10, density rho0 +-2 %, pressure 0..0.02 rho0 c0^2)", length=(2,))
     radius: float = spec(0.6, "splat radius in spacings", range=(0.05, 10.0))
     camera: str = spec("default", "active camera: 'default' (frames the domain) or a [[render.cameras]] name")
-    points_every: int = spec(0, "also log every k-th particle (by id) as a 3D point cloud (0 = off)",
+    points_every: int = spec(0, "log every k-th particle (by id) as a 3D point cloud (0 = about 3000 points in all)",
                              range=(0, 10**9))
     cameras: list = spec([], "extra named cameras ([[render.cameras]])")
 

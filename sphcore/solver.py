@@ -16,6 +16,7 @@ from sphcore import stages as st
 from sphcore.backends import cpu
 from sphcore.choices import Integrator
 from sphcore.halo import NULL_HALO
+from sphcore.health import Health
 from sphcore.initial import generate_particles
 from sphcore.model import Model
 from sphcore.scene import Scene
@@ -62,6 +63,9 @@ def _same(a, b) -> bool:
 
 
 GRID_GEOMETRY = ("origin", "ncell", "cell", "period", "periodic")
+# What switching an optional stage on or off changes in the Model (a term from or to 0, sph.delta
+# from or to 0): a restart in place from the current state (``Simulation.change_scene``).
+RESTARTABLE = ("choices", "use_xsph", "use_shifting", "use_drift", "use_vorticity", "use_diffusion", "force_terms")
 
 
 class SimulationError(RuntimeError):
@@ -114,6 +118,7 @@ class Simulation:
             self.grid = self.engine.grid  # the device grid: counts, permutation downloaded on demand
         else:
             self.engine = cpu.CpuStages(self)
+        self.health = Health(self)  # unconverged solves, the energy watchdog (health.py)
 
     @property
     def prm(self):
@@ -173,19 +178,26 @@ class Simulation:
             raise ValueError(str(e)) from None
         self.change_scene(scene)
 
-    def changed_model(self, scene: Scene) -> Model:
-        """The Model of ``scene``, a live change of this run's scene: ValueError naming what else the
-        change would alter (the compiled step, the grid, the walls), which no running step can follow."""
-        new = Model(scene, self.precision, self.backend)
+    def _structure_changes(self, new: Model) -> list[str]:
+        """The Model attributes, besides LIVE_MODEL's, that differ between this run's and ``new``."""
         old = self.model
         changed = [name for name in sorted(vars(new)) if name not in LIVE_MODEL
                    and not _same(getattr(old, name, None), getattr(new, name))]
         if [term.name for term, _ in old.force_terms] != [term.name for term, _ in new.force_terms]:
             changed.append("force_terms")
+        return changed
+
+    def changed_model(self, scene: Scene) -> Model:
+        """The Model of ``scene``, a live change of this run's scene: ValueError naming what else the
+        change would alter (the compile-time choices of the physics, the grid, the walls), which no
+        running run can follow. Switching optional stages on or off (RESTARTABLE) is allowed: the
+        change is then a restart in place (``change_scene``)."""
+        new = Model(scene, self.precision, self.backend)
+        changed = [name for name in self._structure_changes(new) if name not in RESTARTABLE]
         if changed:
             what = sorted({MODEL_PARTS.get(name, name) for name in changed})
-            raise ValueError(f"it changes the compiled step or the world ({', '.join(what)}), which a running step "
-                             "cannot follow (set a new value, not 0 <-> > 0 for an optional term; or start a new run)")
+            raise ValueError(f"it changes the compiled step or the world ({', '.join(what)}), which a running run "
+                             "cannot follow (start a new run)")
         return new
 
     def change_scene(self, scene: Scene):
@@ -193,10 +205,25 @@ class Simulation:
         during a run (``scene.live_change``): the Params, the viscosity, the mass of new particles (a
         reset's) and the force terms' values are rebuilt from it exactly as a new run of ``scene``
         would build them, so a run changed after step k is bitwise a run resumed from step k's
-        checkpoint with the new values. ValueError (``changed_model``) leaves the run unchanged."""
+        checkpoint with the new values. A change that switches optional stages on or off (a term
+        from or to 0, sph.delta) restarts the run in place from its current state, as that resumed
+        run starts: the new Model whole, its scratch and backend (a stage run for the first time
+        compiles then). ValueError (``changed_model``) leaves the run unchanged."""
         new = self.changed_model(scene)
-        for name in LIVE_MODEL:
-            setattr(self.model, name, getattr(new, name))
+        if self._structure_changes(new):
+            state = self.state  # on a GPU: downloaded, and uploaded again by the new backend
+            self.model = new
+            self.grid = new.host_grid
+            self._add_extra(state)
+            if self.backend == "cuda":
+                from sphcore.backends import cuda as cuda_backend
+                self.engine = cuda_backend.CudaStages(self)
+                self.grid = self.engine.grid
+            else:
+                self.engine = cpu.CpuStages(self)
+        else:
+            for name in LIVE_MODEL:
+                setattr(self.model, name, getattr(new, name))
         stats = self.solver.stats
         self.solver = SOLVERS[scene.sph.solver](self)  # its reference density is the new scene's
         self.solver.stats = stats
@@ -269,6 +296,7 @@ class Simulation:
         self.dt = dt
         self.t += dt
         self.step_index += 1
+        yield from self.health.after_step(halo)                   # every K steps: the energy watchdog
 
     def _fields(self, halo, prm, commit):
         """Exchange 1, the neighbour lists, density and pressure (DFSPH: its factors and the
@@ -333,8 +361,8 @@ class Simulation:
 
     def _fail(self, cause: str, density: bool = False, rows: str = "bad"):
         """Raise SimulationError naming the step, the cause and the particles concerned: the
-        over-compressed ones (density), the fastest and most accelerated ten (rows="fastest"), or
-        those holding NaN/Inf."""
+        over-compressed ones (density), the fastest and most accelerated ten (rows="fastest"), the
+        ten farthest from the solve's reference density (rows="densest"), or those holding NaN/Inf."""
         s = self.state
         n = s.n_owned
         if density:
@@ -342,6 +370,8 @@ class Simulation:
         elif rows == "fastest":
             score = np.einsum("ij,ij->i", s.v[:n], s.v[:n]) + np.einsum("ij,ij->i", s.a[:n], s.a[:n]) * self.h
             rows = np.argsort(-score, kind="stable")[:10]
+        elif rows == "densest":
+            rows = np.argsort(-np.abs(s.rho[:n] / self.rho_ref - 1.0), kind="stable")[:10]
         else:
             finite = np.isfinite(s.x[:n]).all(1) & np.isfinite(s.v[:n]).all(1) & np.isfinite(s.a[:n]).all(1)
             rows = np.nonzero(~(finite & np.isfinite(s.rho[:n])))[0]

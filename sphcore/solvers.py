@@ -191,6 +191,7 @@ class DFSPH(WCSPH):
         stats["unconverged"] += int(mean > tolerance)
         stats["last"] = it
         stats["last_error"] = mean
+        sim.health.solve_ended(halo, name, stats, mean, tolerance)  # warn or stop if unconverged
 
     def _exchange_rows(self, halo, phase, name):
         """Ghost rows of a per-row array (lam, v, v*) from their owners; nothing for one process."""

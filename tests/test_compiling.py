@@ -1,5 +1,6 @@
 """Progress while numba compiles (launch/compiling.py): one line when a compilation starts, the
-elapsed time while it goes on, the total at the end; nothing for a function already compiled."""
+elapsed time while it goes on, the total at the end; nothing for a function already compiled, nor
+for a warm run (its literal dispatch fires short compile events)."""
 import time
 
 from launch.compiling import START, report_compiling
@@ -8,7 +9,7 @@ from launch.compiling import START, report_compiling
 def test_a_compilation_is_reported_with_its_elapsed_time():
     from numba import njit
     said = []
-    report_compiling(every=0.05, say=said.append)
+    report_compiling(every=0.05, say=said.append, announce_after=0.0)
     namespace = {}
     # a function numba has never seen (no cache), which compiles for a moment
     exec("def f(a):\n    s = 0.0\n" + "".join(f"    s += a[{i}] * {i}.5\n" for i in range(200)) + "    return s",
@@ -27,3 +28,15 @@ def test_a_compilation_is_reported_with_its_elapsed_time():
     f(np.ones(200))
     time.sleep(4.0)
     assert len(said) == n
+
+
+def test_a_run_whose_kernels_are_cached_says_nothing_about_compiling(tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+    root = Path(__file__).resolve().parent.parent
+    run = [sys.executable, "-m", "launch.cli", "run", "configs/tiny.toml", "--steps", "5", "--quiet", "--no-viewer"]
+    subprocess.run(run + ["--out", str(tmp_path / "a")], cwd=root, capture_output=True, timeout=600)  # warms
+    done = subprocess.run(run + ["--out", str(tmp_path / "b")], cwd=root, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "compil" not in done.stderr, done.stderr

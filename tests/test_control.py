@@ -99,8 +99,8 @@ def test_a_single_process_run_listens_for_every_command(tmp_path, capsys):
         assert control_of(out, "checkpoint")[::2] == (0, k)
         rc, err, _ = control_of(out, "set", "sph.kernel=cubic_spline")
         assert rc == 2 and "sph.kernel" in err and "compiled step" in err and "Traceback" not in err, err
-        rc, err, _ = control_of(out, "set", "terms.drag=1")
-        assert rc == 2 and "terms.drag = 1.0" in err and "force-term stages" in err and "Traceback" not in err, err
+        rc, err, _ = control_of(out, "set", "time.steps=5")
+        assert rc == 2 and "time.steps" in err and "run's length" in err and "Traceback" not in err, err
         assert control_of(out, "step", "5")[::2] == (0, k + 5)
         log.wait_for(f"step {k + 5}: pause", timeout=60, proc=p)
         held = json.loads((out / "summary.json").read_text())  # rewritten when the run is held
@@ -210,5 +210,7 @@ def test_announced_sets_are_checked_in_order_and_against_the_running_step():
     sim = Simulation(sc, "f64")
     ok = [{"op": "set", "key": "sph.nu", "value": 2e-5}, {"op": "reset"}, {"op": "checkpoint"}]
     assert control.check_announced(sc, ok, ["default"], sim) == ok
-    with pytest.raises(ValueError, match="force-term stages"):  # turns a stage on: the step cannot follow
-        control.check_announced(sc, [{"op": "set", "key": "terms.drag", "value": 1.0}], ["default"], sim)
+    drag = [{"op": "set", "key": "terms.drag", "value": 1.0}]  # a stage switched on: a restart in place
+    assert control.check_announced(sc, drag, ["default"], sim) == drag
+    with pytest.raises(ValueError, match="needs nu > 0"):  # the scene's cross-key rules hold too
+        control.check_announced(sc, [{"op": "set", "key": "sph.nu", "value": 0.0}], ["default"], sim)

@@ -22,7 +22,8 @@ from conftest import CONFIGS
 
 TINY = CONFIGS / "tiny.toml"
 DIAGNOSTIC = re.compile(r"^step \d+ \(t = [^)]+\): (.+); particles \d+")
-CAUSES = ("NaN or Inf", "density ratio", "speed of sound", "CFL violation", "time step collapsed")
+CAUSES = ("NaN or Inf", "density ratio", "speed of sound", "CFL violation", "time step collapsed",
+          "did not converge", "mechanical energy")
 
 
 def run(overrides=(), precision="f64", steps=12, place=None):
@@ -97,6 +98,8 @@ SPACING = [0.006, 0.0125, 0.02]
 KERNELS = ["muller", "cubic_spline", "wendland_c2"]
 PRECISIONS = ["f64", "f32"]
 
+UNCONVERGED = ["sph.max_iterations=1", "sph.density_tolerance=1e-6"]  # one iteration cannot reach 1e-6
+
 MATRIX = (
     [(f"cfl={c}", ["time.mode='adaptive'", f"time.cfl={c}"], p) for c in CFL for p in PRECISIONS]
     + [(f"fixed_dt={dt}", ["time.mode='fixed'", f"time.dt={dt}"], p) for dt in FIXED_DT for p in PRECISIONS]
@@ -120,7 +123,11 @@ MATRIX = (
        for p in PRECISIONS]
     + [(f"dfsph,{name}", ["sph.solver='dfsph'", "time.dt=0.01", *over], p)
        for name, over in (("cfl=0.25", []), ("cfl=2", ["time.cfl=2.0"]), ("tolerance=0.5", ["sph.density_tolerance=0.5"]),
-                          ("max_iterations=1", ["sph.max_iterations=1"]))
+                          ("max_iterations=1", ["sph.max_iterations=1"]),
+                          # a solve that cannot reach its tolerance: warned about (12 steps are fewer than the
+                          # 20 the unconverged fraction is judged from), or stopped at once
+                          ("unconverged,warn", UNCONVERGED),
+                          ("unconverged,stop", UNCONVERGED + ["sph.on_unconverged=stop"]))
        for p in PRECISIONS]
 )
 
@@ -136,6 +143,7 @@ STOPS = {
     "c0=0.5": stops(0, SPEED_OF_SOUND + " (max |v| = 1 m/s >= sph.sound_speed = 0.5 m/s)"),  # the drop's 1 m/s
     "gravity=100000.0": stops(3, SPEED_OF_SOUND),  # 29 m/s after 3 steps against c0 = 20 m/s
     "surface_tension=1e3": stops(8, SPEED_OF_SOUND),  # 22 m/s after 8 steps
+    "dfsph,unconverged,stop": stops(0, "the DFSPH density solve did not converge in sph.max_iterations = 1"),
 }
 
 
@@ -281,3 +289,88 @@ def test_a_large_empty_tank_is_fine():
 @pytest.mark.parametrize("name,overrides,precision", MATRIX, ids=[m[0] + "," + m[2] for m in MATRIX])
 def test_matrix_long(name, overrides, precision):
     check(*run(overrides, precision, steps=300))
+
+
+# -- no silent failure: what the per-step checks cannot see (sphcore/health.py) ----------------------
+DFSPH = ["sph.solver='dfsph'", "time.dt=0.01"]
+
+
+def test_dfsph_unconverged_steps_stop_once_they_are_the_majority():
+    """The default (sph.on_unconverged = 'warn'): from the 20th solved step on, more than half of
+    the steps unconverged (sph.max_unconverged_fraction = 0.5) stops the run."""
+    outcome, message = run(DFSPH + UNCONVERGED, steps=25)
+    expect(outcome, message, stops(19, "the DFSPH density solve did not converge in sph.max_iterations = 1"))
+    assert "(20 of 20 steps unconverged so far): more than sph.max_unconverged_fraction = 0.5" in message
+    assert "raise sph.max_iterations" in message
+
+
+def test_dfsph_unconverged_steps_warn_at_the_1st_and_10th(caplog):
+    """sph.max_unconverged_fraction = 1: every step unconverged, warned about at the 1st and the
+    10th only (a long run does not flood the log), and the run goes on."""
+    outcome, sim = run(DFSPH + UNCONVERGED + ["sph.max_unconverged_fraction=1"], steps=25)
+    expect(outcome, sim, STABLE)
+    assert sim.solver_stats["density"]["unconverged"] == 25
+    logged = [r.getMessage() for r in caplog.records if r.name == "sph.health"]
+    assert len(logged) == 2 and sim.health.warnings["unconverged"] == 2
+    assert logged[0].startswith("step 0 ") and logged[1].startswith("step 9 ")
+    assert "mean |rho*/rho0 - 1| = " in logged[0] and "against sph.density_tolerance = 1e-06" in logged[0]
+
+
+DAM_2D = CONFIGS / "dam_break_2d.toml"
+COARSE_DAM = ["particles.spacing=0.02", "run.energy_check_every=100"]  # 200 particles
+
+
+def run_dam(overrides, steps):
+    """dam_break_2d at 200 particles for ``steps`` steps: ("stable", sim) or ("stopped", message)."""
+    sim = Simulation(load_scene(DAM_2D, COARSE_DAM + list(overrides)), "f64")
+    try:
+        for _ in range(steps):
+            sim.step()
+    except SimulationError as e:
+        return "stopped", str(e)
+    return "stable", sim
+
+
+NO_VISCOSITY = "likely cause: no viscosity (sph.alpha = 0 and no physical viscosity)"
+
+
+def test_the_energy_watchdog_stops_an_inviscid_dam_break():
+    """The issue's example: without viscosity the dam break gains mechanical energy (81 % of its
+    scale by t = 1 s here); run.on_energy_growth = 'stop' stops it where the growth passes
+    run.energy_growth = 0.25, naming the cause."""
+    outcome, message = run_dam(["sph.alpha=0", "run.on_energy_growth=stop"], 1950)
+    assert outcome == "stopped", "an inviscid dam break gaining energy ran on"
+    assert DIAGNOSTIC.match(message), message
+    assert message.startswith("step 1900 "), message
+    assert "the mechanical energy (kinetic + potential) of this closed scene grew by 26.3 %" in message
+    assert NO_VISCOSITY in message and "beyond run.energy_growth = 0.25" in message
+
+
+def test_the_energy_watchdog_warns_by_default_and_not_with_viscosity(caplog):
+    # Given the inviscid dam break with the default (warn) and the shipped one (sph.alpha = 0.02)
+    outcome, inviscid = run_dam(["sph.alpha=0"], 1950)
+    assert outcome == "stable"
+    logged = [r.getMessage() for r in caplog.records if r.name == "sph.health"]
+    # Then the inviscid one is warned about once, at the check where it passed the limit
+    assert len(logged) == 1 and logged[0].startswith("step 1900 ") and NO_VISCOSITY in logged[0], logged
+    assert inviscid.health.summary()["warnings"]["energy"] == 1
+    assert inviscid.health.energy["max_growth"] > 0.25
+    # And the viscous one loses energy or gains far less, and is not warned about
+    caplog.clear()
+    outcome, viscous = run_dam([], 1950)
+    assert outcome == "stable"
+    assert not [r for r in caplog.records if r.name == "sph.health"]
+    assert viscous.health.energy["watchdog"] == "on" and viscous.health.energy["max_growth"] < 0.1
+
+
+@pytest.mark.fast
+@pytest.mark.parametrize("overrides,reason", [
+    (["terms.surface_tension=0.01"], "off: terms.surface_tension > 0"),
+    (["terms.vorticity_confinement=0.1"], "off: terms.vorticity_confinement > 0"),
+    (["run.energy_check_every=0"], "off (run.energy_check_every = 0"),
+    (["forces.ramp_time=1.0"], "waiting for the end of forces.ramp_time = 1 s"),
+])
+def test_the_energy_watchdog_says_why_it_is_off(overrides, reason):
+    outcome, sim = run(overrides, steps=2)
+    assert outcome == "stable"
+    assert sim.health.summary()["energy"]["watchdog"].startswith(reason)

@@ -147,11 +147,24 @@ def test_every_live_key_has_a_case():
     assert sorted(CASES) == sorted(live_keys())
 
 
+# a term switched on or off: a restart in place from the current state (Simulation.change_scene)
+SWITCHES = {
+    "terms.drag on": ((), "terms.drag=1.0", True),
+    "terms.xsph on": ((), "terms.xsph=0.2", True),
+    "terms.vorticity_confinement on": ((), "terms.vorticity_confinement=0.2", True),
+    "terms.surface_tension on": ((), "terms.surface_tension=0.05", True),
+    "terms.shifting off": (TERMS, "terms.shifting=0.0", True),
+    "terms.xsph off": (TERMS, "terms.xsph=0.0", True),
+    "sph.delta off": (("sph.density=continuity",), "sph.delta=0.0", True),
+}
+
+
 @pytest.mark.parametrize("run", RUNS, ids=list(RUNS))
-@pytest.mark.parametrize("key", CASES)
+@pytest.mark.parametrize("key", list(CASES) + list(SWITCHES))
 def test_a_key_set_during_the_run_equals_resuming_with_it_set(key, run, tmp_path):
     # Given a run whose controller sets KEY after a few steps
-    base, text, effect = CASES[key]
+    base, text, effect = CASES[key] if key in CASES else SWITCHES[key]
+    key = key.split()[0]
     sc = scene("tiny", *base)
     summary, final, acks = RUNS[run](sc, tmp_path / "controlled", script=[(5, f"set {text}", False)])
     # Then the command was accepted and applied after one step k, recorded in summary.json and scene.toml
@@ -241,7 +254,7 @@ def test_checkpoint_now_while_running_resumes_bitwise(run, tmp_path):
 @pytest.mark.parametrize("run", RUNS, ids=list(RUNS))
 def test_refused_commands_name_the_reason_and_change_nothing(run, tmp_path):
     sc = scene("tiny")
-    script = [(2, "set terms.xsph=0.2", False),        # would switch a stage on
+    script = [(2, "set time.steps=5", False),            # the run's length
               (2, "set sph.kernel=cubic_spline", False),  # changes the compiled step
               (2, "set particles.spacing=0.01", False),   # the particle set
               (2, "set sph.alpha=-1", False),             # out of range
@@ -250,7 +263,7 @@ def test_refused_commands_name_the_reason_and_change_nothing(run, tmp_path):
     summary, final, acks = RUNS[run](sc, tmp_path / "run", script=script)
     reasons = [a[3] for a in acks]
     assert [a[1] for a in acks] == ["rejected"] * len(script), acks
-    assert "terms.xsph = 0.2" in reasons[0] and "the XSPH stage" in reasons[0]
+    assert "time.steps" in reasons[0] and "the run's length" in reasons[0]
     assert "sph.kernel" in reasons[1] and "compiled step" in reasons[1]
     assert "particles.spacing" in reasons[2] and "particle set" in reasons[2]
     assert "sph.alpha = -1" in reasons[3] and "[0, 10]" in reasons[3]
@@ -279,7 +292,7 @@ def test_what_a_held_peer_is_sent_is_checked_before_it_is_applied():
     assert good["commands"][1] == {"op": "checkpoint"} and good["resume"] is False
     for bad in (held([{"op": "pause"}]),                                         # the run is held already
                 held([{"op": "set", "key": "sph.kernel", "value": "muller"}]),  # not live
-                held([{"op": "set", "key": "terms.drag", "value": 1.0}]),       # switches a stage on
+                held([{"op": "set", "key": "time.steps", "value": 5}]),         # the run's length
                 held([{"op": "set", "key": "sph.alpha", "value": 1e9}]),        # out of range
                 held([{"op": "reset"}], resume=2), held([], extra=np.zeros(1)),
                 {"control": encode_commands([])},
