@@ -20,11 +20,13 @@ ROOT = Path(__file__).resolve().parent.parent
 PARITY = ROOT / "tests" / "cuda_parity.py"
 
 # Largest allowed difference, scaled by each field's natural size (tests/cuda_parity.py). float64:
-# the issue's ~1e-12. float32: positions, velocities, density and pressure within 1e-6; the
-# acceleration is a sum of pressure terms that cancel to ~g, so its round-off relative to max |a|
-# is ~1e3 float32 epsilons.
+# the issue's ~1e-12. float32: positions, density and pressure within 1e-6. Float32 passes sum in
+# float32 (physics/real.py), and the CPU's reassociated sums (cpu.FASTMATH) round differently from
+# the GPU's sequential ones: the acceleration is a sum of pressure terms that cancel to ~g, so its
+# round-off relative to max |a| is a few 1e3 float32 epsilons, and the velocity inherits it (tiny.toml,
+# 3 steps, 2026-12-02: a 3.8e-4, v 1.6e-6; with float64 accumulators before: a 7.7e-5 on an H200).
 TOL = {"f64": {"x": 1e-12, "v": 1e-12, "rho": 1e-12, "p": 1e-12, "a": 1e-11},
-       "f32": {"x": 1e-6, "v": 1e-6, "rho": 1e-6, "p": 1e-6, "a": 2e-4}}
+       "f32": {"x": 1e-6, "v": 4e-6, "rho": 1e-6, "p": 1e-6, "a": 1e-3}}
 
 
 # The cases in two groups of about equal cost, run side by side (the suite's other tests wait for
