@@ -236,6 +236,41 @@ def advance(sim: Simulation, halo, scene: Scene, steps: int | None, until: float
     return loop
 
 
+class _EventFeed(logging.Handler):
+    """What a peer tells the viewer's event log with its frames (FrameMaker.event): cuts moved by a
+    rebalance, a restart from a checkpoint, and its own warnings and errors (the ``sph`` loggers)."""
+
+    def __init__(self, maker, halo, restarts, step: int):
+        super().__init__(logging.WARNING)
+        self.maker, self.halo = maker, halo
+        self.cuts = _cuts(halo)
+        if maker is None:
+            return
+        maker.exchange_bytes = getattr(halo, "bytes_sent", None)  # plotted per exchange by the viewer
+        if restarts:
+            maker.event("WARN", f"step {step}: restarted from a checkpoint (restart {len(restarts)} of this run)")
+        logging.getLogger("sph").addHandler(self)
+
+    def emit(self, record):
+        if self.maker is not None:
+            self.maker.event("ERROR" if record.levelno >= logging.ERROR else "WARN", record.getMessage()[:500])
+
+    def after_step(self, step: int):
+        cuts = _cuts(self.halo)
+        if self.maker is not None and cuts != self.cuts:
+            self.maker.event("INFO", f"step {step}: rebalanced, cuts now {cuts}")
+        self.cuts = cuts
+
+    def close(self):
+        logging.getLogger("sph").removeHandler(self)
+        super().close()
+
+
+def _cuts(halo):
+    dec = getattr(halo, "dec", None)
+    return [[round(float(c), 6) for c in axis] for axis in dec.cuts] if dec is not None else None
+
+
 def drive(peer: PeerRun, plan: RunPlan, frames: FrameSink | None = None):
     """Generator: run ``peer`` to the end of ``plan``; rank 0 writes the outputs and returns the
     summary (the others return None). Checkpoints: every peer writes its part and sends rank 0 its
@@ -253,6 +288,8 @@ def drive(peer: PeerRun, plan: RunPlan, frames: FrameSink | None = None):
                         keep_block=None if single else (lambda: take_block(sim, halo.dec, rank)), stop=plan.stop,
                         on_set=lambda key, value: live_change(key, value),
                         on_hold=lambda held: progress("paused" if held else "running"))
+    maker = frames.maker if frames is not None else None
+    events = _EventFeed(maker, halo, plan.restarts, sim.step_index)
     if plan.out is not None:  # before the first step: a run that cannot keep its result does not start
         prepare_output(plan.out)
         write_summary(plan.out / "summary.json", progress_summary(sim, scene, world, peer.t_start, "running"))
@@ -302,6 +339,7 @@ def drive(peer: PeerRun, plan: RunPlan, frames: FrameSink | None = None):
         if vtk is not None and vtk.due(sim):
             vtk.write(sim, block_box())
         if frames is not None:
+            events.after_step(sim.step_index)
             frames.show(sim)
         if time.perf_counter() - last_summary[0] >= plan.summary_every_s:
             progress("running")
@@ -316,6 +354,7 @@ def drive(peer: PeerRun, plan: RunPlan, frames: FrameSink | None = None):
                 health=sim.health.summary(), controls=[list(c) for c in controls.applied]))
         raise
     finally:
+        events.close()
         if frames is not None:
             frames.close()
     controls.finish()

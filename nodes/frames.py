@@ -29,6 +29,9 @@ def points_stride(points_every: int, particles_total: int) -> int:
     return max(1, -(-particles_total // POINT_BUDGET))
 
 
+MAX_EVENTS = 20  # event-log lines a peer sends with one frame
+
+
 class FrameMaker:
     def __init__(self, scene, box, rank: int, world: int, particles_total: int):
         self.renderer = SceneRenderer(scene, *box, world)
@@ -37,6 +40,25 @@ class FrameMaker:
         self.rank, self.world, self.particles_total = rank, world, particles_total
         self._seen = {}  # stage -> samples already summarised
         self.controls = []  # control commands applied since the last frame (logged by the viewer)
+        # (level, text) since the last frame for the viewer's event log: rebalances, restarts and this
+        # peer's warnings (nodes/driver.py adds them); at most MAX_EVENTS per frame, then a count
+        self.events = []
+        self.events_dropped = 0
+        self.exchange_bytes = None  # the halo's array bytes sent per exchange (sphcore/halo.py), if any
+
+    def event(self, level: str, text: str):
+        """Queue a line for the viewer's event log (level INFO, WARN or ERROR)."""
+        if len(self.events) < MAX_EVENTS:
+            self.events.append([level, text])
+        else:
+            self.events_dropped += 1
+
+    def _take_events(self) -> list:
+        events, self.events = self.events, []
+        if self.events_dropped:
+            events.append(["WARN", f"{self.events_dropped} more events since the last frame not shown"])
+            self.events_dropped = 0
+        return events
 
     def due(self, sim) -> bool:
         return self.every > 0 and sim.step_index % self.every == 0
@@ -64,6 +86,8 @@ class FrameMaker:
                  "particles_total": self.particles_total, "stage_ms": stage_ms, "bytes_sent": int(bytes_sent),
                  "kinetic_energy": sim.kinetic_energy(), "max_density_deviation": dev, "wall_time": time.time(),
                  "controls": self.controls, "camera": self.renderer.camera_name,
+                 "events": self._take_events(),
+                 "bytes_by_exchange": {k: int(v) for k, v in (self.exchange_bytes or {}).items()},
                  "color_by": self.renderer.quantity, "range": [float(v) for v in self.renderer.range]}
         self.controls = []
         return frame, stats, points

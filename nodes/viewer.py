@@ -31,9 +31,11 @@ Rerun entities (timelines ``step`` and ``sim_time``):
     fluid/points                            the 3D point cloud (render.points_every; 0 = a point budget)
     camera                                  the camera the frames are rendered with (pinhole + pose)
     control                                 the control commands applied (sph control)
-    events                                  camera and colour switches, dropped frames
+    events                                  camera and colour switches, dropped frames; each peer's
+                                            rebalances, restarts and warnings ("peer r: ...")
     stats/...                               per-peer particles (and imbalance), stage milliseconds, bytes
-                                            sent; kinetic energy, max density deviation, frames/s,
+                                            sent (all, and per exchange: stats/exchange_mb/<exchange>);
+                                            kinetic energy, max density deviation, frames/s,
                                             composite latency, dropped frames
     domain, container, obstacles/<i> (static)   the domain box and the walls as meshes
     info, legend                            the scene's physical parameters (updated after control set),
@@ -46,6 +48,7 @@ import dataclasses
 import io
 import json
 import logging
+import math
 import queue
 import re
 import threading
@@ -170,6 +173,7 @@ def blueprint(scene, world: int, camera=None):
         rrb.TimeSeriesView(name="Particles per peer, imbalance", origin="/stats",
                            contents=["/stats/particles/**", "/stats/imbalance"]),
         rrb.TimeSeriesView(name="MB sent per peer", origin="/stats/bytes_sent_mb"),
+        rrb.TimeSeriesView(name="MB per exchange (arrays)", origin="/stats/exchange_mb"),
         rrb.TimeSeriesView(name="Kinetic energy", origin="/stats", contents=["/stats/kinetic_energy"]),
         rrb.TimeSeriesView(name="Max density error", origin="/stats", contents=["/stats/max_density_deviation"]),
         rrb.TimeSeriesView(name="Viewer: latency ms, frames/s, dropped", origin="/stats",
@@ -427,6 +431,9 @@ class Viewer:
         self._follow(step, stats[ranks[0]])
         with self._lock:
             controls, self._carried = self._carried + list(stats[ranks[0]].get("controls", [])), []
+        for r in ranks:  # each peer's own: rebalances, restarts, warnings (nodes/driver._EventFeed)
+            for level, text in peer_events(stats[r].get("events")):
+                rec.log("events", rr.TextLog(f"peer {r}: {text}", level=level))
         for text in controls:  # every peer applied it; log it once
             rec.log("control", rr.TextLog(text, level="INFO"))
             changed = apply_setting(self.scene, text)
@@ -469,6 +476,8 @@ class Viewer:
             rec.log(f"stats/bytes_sent_mb/peer{r}", rr.Scalars(s["bytes_sent"] / 1e6))
             for stage, ms in s["stage_ms"].items():
                 rec.log(f"stats/stage_ms/{stage}/peer{r}", rr.Scalars(ms))
+            for kind, sent in exchange_bytes(s.get("bytes_by_exchange")):
+                rec.log(f"stats/exchange_mb/{kind}/peer{r}", rr.Scalars(sent / 1e6))
         if self.world > 1 and counts and np.mean(counts) > 0:
             rec.log("stats/imbalance", rr.Scalars(max(counts) / np.mean(counts) - 1.0))
         rec.log("stats/kinetic_energy", rr.Scalars(sum(s["kinetic_energy"] for s in stats.values())))
@@ -491,6 +500,32 @@ class Viewer:
 
 
 # -- the wire side --------------------------------------------------------------------------------
+EVENT_LEVELS = ("INFO", "WARN", "ERROR")
+_NAME = re.compile(r"[a-z][a-z0-9_]{0,31}")
+
+
+def peer_events(events) -> list[tuple[str, str]]:
+    """The well-formed (level, text) pairs of a peer's ``events`` (a frame's statistics come off the
+    wire: anything else is skipped), texts cut at 500 characters, at most 32."""
+    if not isinstance(events, list):
+        return []
+    out = []
+    for e in events[:32]:
+        if isinstance(e, list) and len(e) == 2 and e[0] in EVENT_LEVELS and isinstance(e[1], str):
+            out.append((e[0], e[1][:500]))
+    return out
+
+
+def exchange_bytes(sent) -> list[tuple[str, float]]:
+    """The (exchange, bytes) pairs of a peer's ``bytes_by_exchange`` that are plain names with finite
+    counts >= 0 (they become entity paths: nothing else is logged), at most 16."""
+    if not isinstance(sent, dict):
+        return []
+    return [(k, float(v)) for k, v in list(sent.items())[:16]
+            if isinstance(k, str) and _NAME.fullmatch(k) and isinstance(v, (int, float))
+            and not isinstance(v, bool) and math.isfinite(v) and v >= 0]
+
+
 def frame_arrays(frame: Framelet, stats: dict, points=None) -> dict:
     arrays = {"rect": np.array([frame.x0, frame.y0, frame.w, frame.h], dtype=np.int64), "rgb": frame.rgb,
               "depth": frame.depth, "id": frame.id,

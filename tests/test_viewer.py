@@ -279,3 +279,48 @@ def test_obstacles_are_drawn_into_the_composite_by_depth():
     assert abs(float(behind_depth[py, px]) - (distance - 0.08)) < 0.01
     assert front_rgb[py, px].tolist() == [250, 0, 0]
     assert (behind_rgb[..., 0] < 250).mean() > 0.003  # the sphere covers some pixels, not one
+
+
+def test_peer_events_and_bytes_per_exchange_reach_the_recording_and_hostile_ones_do_not(tmp_path):
+    # Given frames whose statistics carry a rebalance, a warning and bytes per exchange, and a frame
+    # whose event list and byte counts are malformed (statistics come off the wire)
+    sc = scene("tiny")
+    box = ((0.0, 0.0, 0.0), (0.15, 0.2, 0.15))
+    rec = open_recording("test", tmp_path / "r.rrd")
+    v = Viewer(sc, box, rec, world=1, particles=12)
+    empty = Framelet(0, 0, 0, np.zeros((0, 0, 3), np.uint8), np.zeros((0, 0), np.float32), np.zeros((0, 0), np.int64))
+    stats = {"sim_time": 0.1, "particles": 12, "bytes_sent": 0, "stage_ms": {}, "kinetic_energy": 0.0,
+             "max_density_deviation": 0.0, "wall_time": time.time()}
+    v.add(1, 0, empty, dict(stats, events=[["INFO", "step 1: rebalanced, cuts now [[3], [], []]"],
+                                          ["WARN", "leaks: 2 particles put back"]],
+                            bytes_by_exchange={"positions": 4096, "fields": 1024}))
+    v.add(2, 0, empty, dict(stats, events=[["DEBUG", "not a level"], "not a pair", ["INFO", 5]],
+                            bytes_by_exchange={"../../x": 10, "fields": float("nan"), "reduce": -1, "ok": True}))
+    v.close()
+    del rec
+    # Then the event log holds the peer's lines, marked with its rank, and nothing of the malformed ones
+    logged = text_logs(tmp_path / "r.rrd", "/events")
+    assert "peer 0: step 1: rebalanced, cuts now [[3], [], []]" in logged
+    assert "peer 0: leaks: 2 particles put back" in logged
+    assert not any("not a" in t for t in logged)
+    # and the bytes per exchange are plotted per peer, only for the plain names with sane counts
+    steps = entity_steps(tmp_path / "r.rrd")
+    assert steps.get("/stats/exchange_mb/positions/peer0") == [1]
+    assert steps.get("/stats/exchange_mb/fields/peer0") == [1]
+    assert not [e for e in steps if e.startswith("/stats/exchange_mb/") and "fields" not in e and "positions" not in e]
+
+
+def test_frame_statistics_carry_the_peers_events_and_exchange_bytes():
+    from nodes.frames import MAX_EVENTS, FrameMaker, domain_box
+    from sphcore.solver import Simulation
+    sc = scene("tiny")
+    sim = Simulation(sc, "f64")
+    maker = FrameMaker(sc, domain_box(sc), 0, 1, sim.n_particles)
+    maker.exchange_bytes = {"positions": 10}
+    for k in range(MAX_EVENTS + 3):
+        maker.event("WARN", f"w{k}")
+    _, stats, _ = maker.make(sim)
+    assert stats["bytes_by_exchange"] == {"positions": 10}
+    assert len(stats["events"]) == MAX_EVENTS + 1 and stats["events"][-1][1].startswith("3 more events")
+    _, stats, _ = maker.make(sim)
+    assert stats["events"] == []
