@@ -26,6 +26,7 @@ which ``_device`` unwraps). That checks the kernels' indexing, launches, binning
 from __future__ import annotations
 
 import functools
+import re
 
 import numba
 import numpy as np
@@ -564,16 +565,12 @@ def stage_signature(stage, dtype: str) -> tuple:
     return tuple(t[a] for a in ("n", *stage.arguments, *outs))
 
 
-_F64 = None
+_F64 = re.compile(r"^\s*(?:@!?%p\d+\s+)?[a-z]+(?:\.[a-z0-9]+)*\.f64\b", re.M)  # an instruction typed .f64
 
 
 def float64_instructions(ptx: str) -> int:
     """The number of float64 instructions in a PTX text (arithmetic, moves, conversions to or from
     float64, comparisons: every instruction whose type suffix is .f64), not counting declarations."""
-    import re
-    global _F64
-    if _F64 is None:
-        _F64 = re.compile(r"^\s*(?:@!?%p\d+\s+)?[a-z]+(?:\.[a-z0-9]+)*\.f64\b", re.M)
     return len(_F64.findall(ptx))
 
 

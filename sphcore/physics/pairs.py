@@ -1,5 +1,5 @@
-"""What every neighbour pass shares: how row i finds its neighbours j, the separation
-x_ij = x_i - x_j of a pair (minimum image on periodic axes, grid.minimum_image) and its length.
+"""What every neighbour pass shares: how row i finds its neighbours j and the separation
+x_ij = x_i - x_j of a pair (minimum image on periodic axes, grid.minimum_image).
 
 Every pass loops the same way, whichever the compile-time choice ``neighbours`` (stages.CHOICES):
 
@@ -15,8 +15,6 @@ With ``NEIGHBOUR_LISTS`` there is one span, row i's list (k indexes it); with ``
 are 27, the cells around i's own (grid.cell_span; k is the row itself) and a candidate counts when
 |x_ij|^2 < H^2 and j != i, the test the list builder applies. Both visit the same j in the same order.
 """
-
-import math
 
 from numba import njit
 
@@ -75,13 +73,3 @@ def candidate(neighbours, periodic, x, nbr, i, k, prm, cells):
     if neighbours == CELL_WALK:
         inside = r2 < cells.H2 and j != i
     return j, dx, dy, dz, r2, inside
-
-
-@njit(cache=True, inline="always")
-def neighbour(periodic, x, nbr, i, k, prm):
-    """(j, dx, dy, dz, r2, r) of row i's k-th list entry j: x_ij = x_i - x_j, |x_ij|^2 and |x_ij| (m)
-    (tests and tools that read a neighbour list)."""
-    j = nbr[i, k]
-    dx, dy, dz = separation(periodic, x, i, j, prm)
-    r2 = dx * dx + dy * dy + dz * dz
-    return j, dx, dy, dz, r2, math.sqrt(r2)
