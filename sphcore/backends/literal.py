@@ -1,13 +1,39 @@
-"""Fast calls into numba functions whose leading arguments are compile-time literals.
+"""Fast calls into numba functions whose leading arguments are compile-time literals, always into
+the machine code of numba's on-disk cache.
 
 Drivers take their choices (kernel, EOS, viscosity model...) as ``numba.literally`` integers, so
 each scene compiles only the branches it uses. numba finds a literal specialisation by raising and
-catching a typing exception on *every* call, which costs ~0.1 s; ``LiteralDispatch`` does that once
-per combination and then calls the compiled entry point directly (~10 us).
+catching a typing exception on *every* call, which costs ~0.1 s; ``LiteralDispatch`` types the
+arguments once per combination and then calls the compiled entry point directly (~10 us).
+
+**Compiled in a helper process.** numba runs a kernel it has just compiled from its JIT engine and
+caches it through a separate object-code path, and with the neighbour passes' reassociation
+licence (``generate.FASTMATH``) the two schedule the sums differently: the process that compiled a
+scene's kernels got other last bits than every later process that loaded them from the cache
+(measured: the 2D dam break, 300 steps, x differed by up to 3e-16 in 196 of its 200 particles), so a
+peer restarted after a fault, or a run resumed from a checkpoint, drifted from the run it continues.
+Loading the cached code back into the compiling process does not help: its engine resolves the
+symbols to the JIT's copies. So a specialisation missing from the cache is compiled by a helper
+process (``python -m sphcore.backends.literal``, started at the first miss and kept for the
+process's life), which saves it to the cache, and this process loads it from there like every other.
+Every process then runs the same object code. Where the cache cannot be written the kernel is
+compiled here, with a warning that runs are then reproducible only within this process.
 """
+import importlib
+import importlib.util
+import logging
+import pickle
+import struct
+import subprocess
+import sys
+import threading
+
 import numba
 import numpy as np
-from numba.core import types
+from numba.core import event, types
+from numba.core.caching import NullCache
+
+log = logging.getLogger("sph.compile")
 
 
 class LiteralDispatch:
@@ -22,20 +48,25 @@ class LiteralDispatch:
         key = tuple(args[: self.n_literals]) + tuple(_cheap_type(a) for a in args[self.n_literals:])
         entry = self._entry.get(key)
         if entry is None:
-            result = self.dispatcher(*args)  # compiles, or loads from the on-disk cache
-            self._entry[key] = self._find(args)
-            return result
+            entry = self._entry[key] = self._compile(args)
         return entry(*args)
 
-    def _find(self, args):
+    def _compile(self, args):
+        """The entry point of the specialisation for ``args``, loaded from the on-disk cache (compiled
+        there by the helper process if missing)."""
         n = self.n_literals
-        wanted = tuple(numba.typeof(a) for a in args[n:])
-        for sig, cres in self.dispatcher.overloads.items():
-            lits = sig[:n]
-            if all(isinstance(t, types.Literal) and t.literal_value == v for t, v in zip(lits, args[:n])) \
-                    and tuple(sig[n:]) == wanted:
-                return cres.entry_point
-        raise RuntimeError(f"{self.__name__}: no compiled specialisation for {args[:n]} {wanted}")
+        d = self.dispatcher
+        sig = tuple(types.literal(v) for v in args[:n]) + tuple(numba.typeof(a) for a in args[n:])
+        if sig not in d.overloads and not isinstance(d._cache, NullCache):
+            cached = d._cache.load_overload(sig, d.targetctx)
+            if cached is None:
+                with event.trigger_event("numba:compile", data={"dispatcher": d, "args": sig, "return_type": None}):
+                    _compile_elsewhere(d, sig)
+        misses = d._cache_misses[sig]
+        d.compile(sig)  # loads from the cache (or, where that failed, compiles here)
+        if d._cache_misses[sig] > misses and not isinstance(d._cache, NullCache):
+            _warn_compiled_here(self.__name__)
+        return d.overloads[sig].entry_point
 
 
 def _cheap_type(a):
@@ -53,3 +84,88 @@ def literal_dispatch(n_literals: int):
     def wrap(dispatcher):
         return LiteralDispatch(dispatcher, n_literals)
     return wrap
+
+
+# -- the helper process -----------------------------------------------------------------------------
+_helper = None
+_helper_lock = threading.Lock()
+_warned = False
+
+
+def _where(dispatcher):
+    """(module name, its file, attribute) by which the helper finds ``dispatcher``."""
+    func = dispatcher.py_func
+    module = sys.modules[func.__module__]
+    return func.__module__, module.__file__, func.__name__
+
+
+def _send(stream, payload: bytes):
+    stream.write(struct.pack("<Q", len(payload)) + payload)
+    stream.flush()
+
+
+def _receive(stream):
+    head = stream.read(8)
+    if len(head) < 8:
+        return None
+    return stream.read(struct.unpack("<Q", head)[0])
+
+
+def _compile_elsewhere(dispatcher, sig):
+    """Have the helper process compile ``dispatcher`` for ``sig`` into the on-disk cache; failures
+    are logged (the caller then compiles in this process)."""
+    global _helper
+    with _helper_lock:
+        try:
+            if _helper is None or _helper.poll() is not None:
+                _helper = subprocess.Popen([sys.executable, "-m", "sphcore.backends.literal"],
+                                           stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+            _send(_helper.stdin, pickle.dumps((*_where(dispatcher), sig)))
+            answer = _receive(_helper.stdout)
+        except (OSError, pickle.PicklingError, ValueError) as e:
+            answer = f"the helper process could not be used: {e}".encode()
+    if answer != b"ok":
+        reason = "it exited" if answer is None else answer.decode(errors="replace")
+        log.warning("%s: compiling in this process (the compile helper failed: %s)", dispatcher.py_func.__name__,
+                    reason)
+
+
+def _warn_compiled_here(name):
+    global _warned
+    if not _warned:
+        _warned = True
+        log.warning("%s was compiled in this process, not loaded from numba's cache: this run's last bits may "
+                    "differ from other processes' (a restarted peer, a resumed run); see sphcore/backends/literal.py",
+                    name)
+
+
+def _serve():
+    """The helper: read (module, file, attribute, signature) requests, compile each into the cache."""
+    stdin, stdout = sys.stdin.buffer, sys.stdout.buffer
+    sys.stdout = sys.stderr  # nothing but answers on the pipe
+    while True:
+        request = _receive(stdin)
+        if request is None:
+            return
+        try:
+            name, path, attribute, sig = pickle.loads(request)
+            module = sys.modules.get(name)
+            if module is None:
+                try:
+                    module = importlib.import_module(name)
+                except ImportError:  # a generated module: imported from its file, under its name
+                    spec = importlib.util.spec_from_file_location(name, path)
+                    module = importlib.util.module_from_spec(spec)
+                    sys.modules[name] = module
+                    spec.loader.exec_module(module)
+            target = getattr(module, attribute)
+            target = getattr(target, "dispatcher", target)
+            target.compile(sig)
+            answer = b"ok"
+        except Exception as e:  # reported to the parent, which compiles itself
+            answer = f"{type(e).__name__}: {e}".encode()
+        _send(stdout, answer)
+
+
+if __name__ == "__main__":
+    _serve()
