@@ -39,7 +39,7 @@ ROOT = Path(__file__).resolve().parent.parent
 # expects to be filed as a duplicate would then be an old step (run.energy_check_every, sphcore/health.py)
 SCENE = ["configs/dam_break_2d.toml", "--set", "particles.spacing=0.01", "--precision", "f64",
          "--set", "run.energy_check_every=0"]
-STEPS = 80
+STEPS = 400  # long enough that the pause, sent after the first whole step is seen, comes before the end
 
 
 def peer_command(rank: int, world: int, run_id: str, ports: list[int], out: Path, steps: int = STEPS) -> list[str]:
@@ -106,6 +106,21 @@ class Attacker:
         self.captured[(dest, source, step, phase)] = (payload, arrays)
         if (dest, source, phase) == (1, 0, "reduce"):
             self.steps_seen.append(step)
+
+    def wait_for_a_whole_step(self, timeout: float = 60.0) -> int:
+        """The first step k of which this session saw peer 1's positions and fields to peer 0 and peer
+        0's reduction to peer 1: a command sent now is accepted at step k + 1 or later (rank 0 sends
+        the commands with its reduction), so the messages of the step before it are at hand to forge
+        from. (The peers start without waiting for this session, and on a slow machine its
+        subscription was not yet known to them during their first steps.)"""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            have = set(self.captured)
+            for (dest, source, step, phase) in have:
+                if (dest, source, phase) == (1, 0, "reduce") and {(0, 1, step, "positions"), (0, 1, step, "fields")} <= have:
+                    return step
+            time.sleep(0.01)
+        raise AssertionError(f"the outsider saw no whole step in {timeout} s: {sorted(self.captured)[:20]}")
 
     def put(self, key: str, payload: bytes, dest: int = 0):
         self.session.put(key, payload, congestion_control=self.zenoh.CongestionControl.BLOCK)
@@ -185,25 +200,27 @@ def _control(capsys, endpoint, run_id, *words, timeout="10"):
 
 
 def test_hostile_messages_are_dropped_and_counted_and_the_result_is_unchanged(tmp_path, undisturbed, capsys):
-    # Given a 2-peer run, an outsider connected to both peers, and an operator who, before the first
-    # step is done, asks to resume (the run is not paused) and to pause
+    # Given a 2-peer run, an outsider connected to both peers that has seen a whole step of their
+    # traffic, and an operator who then asks to resume (the run is not paused) and to pause
     out = tmp_path / "attacked"
     procs, logs, endpoints = start_run("attacked", out)
     attacker = Attacker("attacked", endpoints)
     acks = {}
+    seen_step = attacker.wait_for_a_whole_step()
 
     # the early resume in another process, so that its answer cannot mix with the pause's
     early = subprocess.Popen([sys.executable, "-m", "launch.cli", "control", "--run-id", "attacked", "--connect",
                               endpoints[0], "--timeout", "120", "--insecure", "resume"], cwd=ROOT, text=True,
                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     try:
-        time.sleep(1.0)  # both commands reach rank 0 before its first step ends (it loads kernels for seconds)
+        time.sleep(1.0)  # the early resume reaches rank 0 before the pause
         acks["pause"] = _control(capsys, endpoints[0], "attacked", "pause", timeout="120")
         err = early.communicate(timeout=30)[1]
         acks["resume early"] = early.returncode, err
         rc, err = acks["pause"]
         assert rc == 0 and "sph control: accepted at step" in err, err
         step = int(err.rsplit("accepted at step", 1)[1].split()[0])
+        assert step > seen_step and step < STEPS, (step, seen_step)
         # When, while the run is held after that step, the outsider sends every kind of hostile message
         # (those for the next steps sit in peer 0's mailbox ahead of the genuine ones), and the operator
         # tries a bad value and a second pause, then resumes
