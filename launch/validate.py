@@ -2,7 +2,7 @@
 case, exit code 1 if any metric fails.
 
     sph validate CASE [--quick] [--out DIR]      CASE: hydrostatic, hydrostatic_3d, dam_break, dam_break_3d,
-                                                       taylor_green, oscillating_drop, poiseuille
+                                                       taylor_green, oscillating_drop, poiseuille, couette
     sph validate --all [--quick]
 
 Each case is a function of (quick, out folder) returning its metrics; ``--quick`` uses a coarser
@@ -459,19 +459,47 @@ def poiseuille_velocity(y, t, F: float, nu: float, L: float, terms: int = 200):
     return u
 
 
+def couette_velocity(y, t, U: float, nu: float, L: float, terms: int = 200):
+    """Start-up Couette flow: fluid at rest between plates at y = 0 (fixed) and y = L, which slides
+    at U along x from t = 0 (Morris, Fox & Zhu 1997, section 4.2; the sine series of U y / L):
+        u = U y / L - sum_n 2 U (-1)^(n+1) / (n pi) sin(n pi y / L) e^{-n^2 pi^2 nu t / L^2}"""
+    y = np.asarray(y, dtype=float)
+    u = U * y / L
+    for n in range(1, terms + 1):
+        u = u - 2.0 * U * (-1.0) ** (n + 1) / (n * math.pi) * np.sin(n * math.pi * y / L) \
+            * math.exp(-n * n * math.pi**2 * nu * t / L**2)
+    return u
+
+
 def poiseuille(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions | None = None) -> list[Metric]:
     """Start-up Poiseuille flow against the series solution (Morris et al. 1997): the largest
     velocity error over the channel at five times up to the steady state, in units of u_max."""
     opts = opts or CaseOptions(backend)
     dx = opts.dx or (5.0e-5 if quick else 2.5e-5)
     scene = load_scene(CONFIGS / "poiseuille_2d.toml", [f"particles.spacing={dx}", *opts.overrides])
-    F, nu = scene.forces.external[0], scene.sph.nu
-    L = scene.domain.size[1]
-    y0 = scene.domain.center[1] - 0.5 * L
-    u_max = F * L**2 / (8.0 * nu)
+    F, nu, L = scene.forces.external[0], scene.sph.nu, scene.domain.size[1]
+    return _start_up_flow(scene, opts, out, "poiseuille", scene.domain.center[1] - 0.5 * L, L, F * L**2 / (8.0 * nu),
+                          lambda y, t: poiseuille_velocity(y, t, F, nu, L), "u_max", "Start-up Poiseuille flow")
+
+
+def couette(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions | None = None) -> list[Metric]:
+    """Start-up Couette flow (a sliding plate: a moving wall) against the series solution: the
+    largest velocity error over the channel at five times up to the steady state, in units of U."""
+    opts = opts or CaseOptions(backend)
+    dx = opts.dx or (5.0e-5 if quick else 2.5e-5)
+    scene = load_scene(CONFIGS / "couette_2d.toml", [f"particles.spacing={dx}", *opts.overrides])
+    bottom, top = scene.domain.planes
+    U, nu, L = top.velocity[0], scene.sph.nu, top.point[1] - bottom.point[1]
+    return _start_up_flow(scene, opts, out, "couette", bottom.point[1], L, U,
+                          lambda y, t: couette_velocity(y, t, U, nu, L), "U", "Start-up Couette flow")
+
+
+def _start_up_flow(scene, opts, out, name, y0, L, scale, exact, scale_name, title) -> list[Metric]:
+    """A channel flow from rest between plates at y0 and y0 + L against its series solution
+    ``exact(y, t)``: the largest velocity error at Morris et al.'s five times, over ``scale``."""
     sim = Simulation(scene, opts.precision, opts.backend)
-    times = (0.0225, 0.045, 0.1125, 0.225, 1.0)  # Morris et al.'s figure 2
-    clock = _Clock(sim, opts, "poiseuille", times[-1])
+    times = (0.0225, 0.045, 0.1125, 0.225, 1.0)  # Morris et al.'s figures 2 and 4
+    clock = _Clock(sim, opts, name, times[-1])
     profiles, worst = [], 0.0
     for t_out in times:
         while sim.t < t_out:
@@ -480,10 +508,10 @@ def poiseuille(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions |
         n = sim.state.n_owned
         y = sim.state.x[:n, 1] - y0
         u = sim.synchronised_velocity()[:n, 0]
-        worst = max(worst, float(np.max(np.abs(u - poiseuille_velocity(y, sim.t, F, nu, L)))) / u_max)
+        worst = max(worst, float(np.max(np.abs(u - exact(y, sim.t)))) / scale)
         profiles.append((sim.t, y.copy(), u.copy()))
     clock.done()
-    metrics = [Metric("poiseuille.velocity_error_of_u_max", worst, 0.02,
+    metrics = [Metric(f"{name}.velocity_error_of_{scale_name}", worst, 0.02,
                       f"max over {sim.n_particles} particles at t = {', '.join(f'{t:g}' for t in times)} s")]
     if not opts.plot:
         return metrics
@@ -491,14 +519,14 @@ def poiseuille(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions |
     fig, ax = plt.subplots(figsize=(6, 4))
     yy = np.linspace(0.0, L, 200)
     for k, (t, y, u) in enumerate(profiles):
-        ax.plot(y / L, u / u_max, ".", ms=3, color=f"C{k}", label=f"t = {t:g} s")
-        ax.plot(yy / L, poiseuille_velocity(yy, t, F, nu, L) / u_max, "-", lw=1, color=f"C{k}")
+        ax.plot(y / L, u / scale, ".", ms=3, color=f"C{k}", label=f"t = {t:g} s")
+        ax.plot(yy / L, exact(yy, t) / scale, "-", lw=1, color=f"C{k}")
     ax.set_xlabel("y / L")
-    ax.set_ylabel("u / u_max")
+    ax.set_ylabel(f"u / {scale_name}")
     ax.legend(fontsize=8)
-    ax.set_title(f"Start-up Poiseuille flow (dots: sphfluid, lines: series), {round(L / dx)} across")
+    ax.set_title(f"{title} (dots: sphfluid, lines: series), {round(L / scene.particles.spacing)} across")
     fig.tight_layout()
-    fig.savefig(out / "poiseuille.png", dpi=100)
+    fig.savefig(out / f"{name}.png", dpi=100)
     plt.close(fig)
     return metrics
 
@@ -514,7 +542,8 @@ def dam_break_3d(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions
 
 
 CASES = {"hydrostatic": hydrostatic, "hydrostatic_3d": hydrostatic_3d, "dam_break": dam_break, "dam_break_3d": dam_break_3d,
-         "taylor_green": taylor_green, "oscillating_drop": oscillating_drop, "poiseuille": poiseuille}
+         "taylor_green": taylor_green, "oscillating_drop": oscillating_drop, "poiseuille": poiseuille,
+         "couette": couette}
 
 
 def run_validate(names: list[str], quick: bool, out: Path, backend: str = "cpu", overrides: tuple = ()) -> int:

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sphcore.choices import Kernel, WallKind
+from sphcore.motion import Motion
 from sphcore.physics.kernels import dw_dr, kernel_constants, w
 from sphcore.scene import Scene
 
@@ -33,11 +34,35 @@ def rotation_matrix(degrees) -> np.ndarray:
 @dataclass
 class Walls:
     kind: np.ndarray        # (nw,) int32
-    data: np.ndarray        # (nw, 16) float
+    data: np.ndarray        # (nw, 16+) float: the rows at the current time (moving walls displaced)
     tables: np.ndarray      # (5, nt): Phi(d), G0(d), G1(d), G2(d), Gv(d) on d in [0, H] (wall_tables)
     lo: np.ndarray          # (3,) lower corner of the domain's bounding box
     hi: np.ndarray          # (3,) upper corner
     container_walls: int    # the first walls belong to the container
+    motion: np.ndarray      # (nw, 6) float: each wall's velocity (m/s) and acceleration (m/s^2) now
+    moves: tuple = ()       # (wall row, sphcore.motion.Motion) of the walls that move
+    rest: np.ndarray | None = None  # (nw, 16+) float64: the rows at t = 0
+    t: float = math.nan     # the time the rows and motion are at (s); none yet: moved before the first step
+
+    # what changes as the walls move: not the walls' definition (Simulation's _same compares the rest)
+    STATE = ("data", "motion", "t")
+
+    def at(self, t: float) -> bool:
+        """Move the walls to time ``t`` (sphcore/motion.py): their rows and velocities; False if no
+        wall moves (nothing changed)."""
+        if not self.moves:
+            return False
+        self.t = t
+        for q, motion in self.moves:
+            shift = motion.displacement(t)
+            row = self.rest[q].copy()
+            row[0:3] += shift
+            if self.kind[q] == WallKind.MESH_OUTSIDE:
+                row[16:19] += shift  # the distance grid's origin (sphcore.mesh_sdf layout)
+            self.data[q] = row
+            self.motion[q, 0:3] = motion.wall_velocity(t)
+            self.motion[q, 3:6] = motion.wall_acceleration(t)
+        return True
 
 
 def _row(point=(0, 0, 0), normal=(0, 0, 0), R=np.eye(3), radius=0.0, half=None):
@@ -60,7 +85,7 @@ def build_walls(scene: Scene, kernel: Kernel, H: float, dtype) -> Walls:
     dom = scene.domain
     c, R = container_frame(scene)
     s = dom.scale
-    kinds, rows = [], []
+    kinds, rows, moving = [], [], []
     corners = []
     if dom.container == "box":
         half = 0.5 * np.array(dom.size) * s
@@ -100,9 +125,11 @@ def build_walls(scene: Scene, kernel: Kernel, H: float, dtype) -> Walls:
     n_container = len(kinds)
     for pl in dom.planes:
         nrm = np.array(pl.normal, dtype=float)
+        moving.append((len(kinds), Motion.of(pl)))
         kinds.append(WallKind.PLANE)
         rows.append(_row(point=pl.point, normal=nrm / np.linalg.norm(nrm)))
     for ob in scene.obstacles:
+        moving.append((len(kinds), Motion.of(ob)))
         centre = np.array(ob.center, dtype=float)
         Rob = rotation_matrix(ob.rotation)
         if ob.frame == "container":
@@ -130,6 +157,9 @@ def build_walls(scene: Scene, kernel: Kernel, H: float, dtype) -> Walls:
         kind=np.array(kinds, dtype=np.int32),
         data=_pad_rows(rows, dtype),
         tables=tables.astype(dtype), lo=lo, hi=hi, container_walls=n_container,
+        motion=np.zeros((len(kinds), 6), dtype=dtype),
+        moves=tuple((q, m) for q, m in moving if m is not None),
+        rest=_pad_rows(rows, np.float64),
     )
 
 

@@ -12,7 +12,7 @@ at the 1st, 10th, 100th ... unconverged step of each solve (a long run does not 
 stops once more than ``sph.max_unconverged_fraction`` of a solve's steps were unconverged, judged
 from the ``MIN_SOLVED_STEPS``-th step on (one early unconverged step is not a trend).
 
-**The energy watchdog.** Every scene is closed today (no inlets, no moving walls) and its body
+**The energy watchdog.** A scene without moving walls (and without inlets) is closed and its body
 forces are conservative, so its mechanical energy
 
     E = sum_i m_i (|v_i|^2 / 2 + u(x_i)),   u(x) = -(g + f_ext) . x + omega^2 |x - c|^2 / 2
@@ -26,7 +26,8 @@ the grid's box: the energy the fluid has to release (a dam break: m g times the 
 centre of mass above the floor). The watchdog is off, and says why in summary.json, where E is not
 the whole story: surface tension (surface energy), vorticity confinement (it adds energy by
 design), a body force along a periodic axis or a central force on a periodic domain (no
-potential), or no energy at all (at rest without body forces). A change of the scene during the
+potential), moving walls (they do work on the fluid), or no energy at all (at rest without body
+forces). A change of the scene during the
 run (``sph control set``) or a reset takes a new reference, and so does a resumed run (its first
 step after the checkpoint).
 
@@ -132,6 +133,8 @@ class Health:
             return "off: terms.surface_tension > 0 (surface energy is not counted)"
         if scene.terms.vorticity_confinement > 0.0:
             return "off: terms.vorticity_confinement > 0 adds energy by design"
+        if self.sim.model.walls.moves:
+            return "off: moving walls do work on the fluid (the scene is not closed)"
         body = np.add(scene.forces.gravity, scene.forces.external)
         periodic = scene.domain.periodic
         for axis in range(len(periodic)):

@@ -181,10 +181,29 @@ class Time:
                       control=RUN_LENGTH)
 
 
+def _motion(what: str) -> dict:
+    """The keys of a wall's prescribed translation (sphcore/motion.py), declared once for every kind
+    of wall that can move: X(t) = velocity t + amplitude (sin(2 pi frequency t + phase) - sin(phase))."""
+    return {
+        "velocity": spec((0.0, 0.0, 0.0), f"the {what}'s constant velocity (m/s; along a plane: a sliding wall that "
+                                          "drags the fluid)", length=VEC),
+        "amplitude": spec((0.0, 0.0, 0.0), f"the {what}'s oscillation amplitude (m)", length=VEC),
+        "frequency": spec(0.0, "oscillation frequency (Hz; 0 = none)", range=(0.0, math.inf)),
+        "phase": spec(0.0, "oscillation phase at t = 0 (degrees)", range=(-360.0, 360.0)),
+    }
+
+
+_PLANE_MOTION, _OBSTACLE_MOTION = _motion("plane"), _motion("obstacle")
+
+
 @dataclass(frozen=True)
 class Plane:
-    point: tuple = spec((0.0, 0.0, 0.0), "a point on the plane (m)", length=VEC)
+    point: tuple = spec((0.0, 0.0, 0.0), "a point on the plane at t = 0 (m)", length=VEC)
     normal: tuple = spec((0.0, 1.0, 0.0), "normal pointing into the fluid", length=VEC)
+    velocity: tuple = _PLANE_MOTION["velocity"]
+    amplitude: tuple = _PLANE_MOTION["amplitude"]
+    frequency: float = _PLANE_MOTION["frequency"]
+    phase: float = _PLANE_MOTION["phase"]
 
 
 @dataclass(frozen=True)
@@ -217,6 +236,10 @@ class Obstacle:
     rotation: tuple = spec((0.0, 0.0, 0.0), "box and mesh: rotation about x, y, z (degrees)", length=VEC)
     frame: str = spec("world", "coordinates of center: world or the container's local frame",
                       choices=("world", "container"))
+    velocity: tuple = _OBSTACLE_MOTION["velocity"]
+    amplitude: tuple = _OBSTACLE_MOTION["amplitude"]
+    frequency: float = _OBSTACLE_MOTION["frequency"]
+    phase: float = _OBSTACLE_MOTION["phase"]
 
 
 @dataclass(frozen=True)
@@ -774,6 +797,9 @@ def _check_combinations(s: Scene, files: bool = True) -> Scene:
     for i, pl in enumerate(s.domain.planes):
         if math.hypot(*pl.normal) == 0:
             raise SceneError(f"domain.planes[{i}].normal = {list(pl.normal)!r}: must be non-zero")
+    for key, item in [(f"domain.planes[{i}]", pl) for i, pl in enumerate(s.domain.planes)] + \
+            [(f"obstacles[{i}]", ob) for i, ob in enumerate(s.obstacles)]:
+        _check_motion(s, key, item)
     if s.sph.solver == "dfsph" and s.time.integrator != "symplectic_euler":
         raise SceneError(f"time.integrator = {s.time.integrator!r}: sph.solver = 'dfsph' integrates with "
                          "'symplectic_euler' (its pressure solve predicts v* = v + dt a and then moves x by dt v*)")
@@ -790,6 +816,21 @@ def _check_combinations(s: Scene, files: bool = True) -> Scene:
     if files:
         _check_resources(s)
     return s
+
+
+def _check_motion(s, key: str, item):
+    """A wall's prescribed motion (sphcore/motion.py): in the scene's plane in 2D, an oscillation
+    with a frequency, and a frequency with an amplitude."""
+    if s.dim == 2:
+        for name in ("velocity", "amplitude"):
+            value = getattr(item, name)
+            if len(value) == 3 and value[2] != 0.0:
+                raise SceneError(f"{key}.{name} = {list(value)!r}: z must be 0 in 2D")
+    if any(item.amplitude) and item.frequency == 0.0:
+        raise SceneError(f"{key}.amplitude = {list(item.amplitude[:s.dim])!r}: an oscillation needs {key}.frequency > 0 "
+                         "(Hz)")
+    if item.frequency > 0.0 and not any(item.amplitude):
+        raise SceneError(f"{key}.frequency = {item.frequency!r}: an oscillation needs a non-zero {key}.amplitude (m)")
 
 
 # Memory of one process, per particle and per grid cell, at float64 (f32 needs less): the state

@@ -46,13 +46,13 @@ MODEL_PARTS = {
 def _same(a, b) -> bool:
     """Equal values: numbers, enums, tuples and dicts by ==, arrays by their bits, objects (the walls,
     the grid's geometry) attribute by attribute; a grid's per-step arrays (counts, order) are not its
-    geometry and are skipped."""
+    geometry and are skipped, nor is where moving walls are now (the attributes in an object's STATE)."""
     if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
         return (isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.dtype == b.dtype
                 and a.shape == b.shape and np.array_equal(a, b))
     if hasattr(a, "__dict__") and not isinstance(a, type) and type(a) is type(b):
         geometry = GRID_GEOMETRY if hasattr(a, "cells_of") else None
-        names = geometry or sorted(vars(a))
+        names = geometry or sorted(set(vars(a)) - set(getattr(a, "STATE", ())))  # the walls' motion: not their definition
         return all(_same(getattr(a, n, None), getattr(b, n, None)) for n in names)
     if isinstance(a, (tuple, list)) and isinstance(b, (tuple, list)):
         return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
@@ -275,6 +275,7 @@ class Simulation:
         stage reads and writes is declared in stages.py."""
         f = self.dtype.type
         prm = self._ramped_params()
+        self._move_walls(self.t)                                   # moving walls (motion.py) to t
         yield from self._fields(halo, prm, commit=True)            # exchanges 1, 2; neighbours; rho, p
         yield from self.solver.prepare(halo, prm)                  # DFSPH: v -> v (divergence-free)
         yield from self._accelerations(halo, prm)                  # x, v, rho, p     -> a (+ drho)
@@ -291,12 +292,18 @@ class Simulation:
             if self.use_diffusion:
                 e.run(st.DENSITY_UPDATE, dt=f(dt))                 # drho             -> carried rho
             e.run(st.INTEGRATE, dt=f(dt), dt_prev=f(self.dt_prev))
+            self._move_walls(self.t + dt)                          # the collision guard: walls at t + dt
             self.leaks += int(e.run(st.BOUNDARIES, prm=prm))
         self.dt_prev = dt
         self.dt = dt
         self.t += dt
         self.step_index += 1
         yield from self.health.after_step(halo)                   # every K steps: the energy watchdog
+
+    def _move_walls(self, t: float):
+        """Moving walls (motion.py) to time t, on the backend too; nothing for static walls."""
+        if self.model.walls.t != t and self.model.walls.at(t):
+            self.engine.walls_moved()
 
     def _fields(self, halo, prm, commit):
         """Exchange 1, the neighbour lists, density and pressure (DFSPH: its factors and the
@@ -391,6 +398,7 @@ class Simulation:
         """refresh() as a generator over a halo (see stages): the step's fields and accelerations at
         the current positions, every force term included (the leapfrog output velocity uses a)."""
         prm = self._ramped_params()
+        self._move_walls(self.t)
         yield from self._fields(halo, prm, commit=False)  # continuity: the next step applies the pending update
         yield from self._accelerations(halo, prm)
         yield from self.solver.refresh(halo, prm)  # DFSPH: the pressure the next step would solve for

@@ -80,6 +80,7 @@ ARGUMENTS = MappingProxyType({
     "wall_kind": ("kinds", "wall primitive kinds (choices.WallKind)"),
     "wall_data": ("table", "wall primitive geometry rows (physics/walls.py)"),
     "wall_tables": ("table", "tabulated wall integrals (boundaries.py)"),
+    "wall_motion": ("table", "each wall's velocity [0:3] (m/s) and acceleration [3:6] (m/s^2) now (motion.py)"),
     "lo": ("row", "the grid origin (3,) (m): periodic wrapping"),
     # per-step scalars the step passes
     "dt": ("float", "this step (s)"),

@@ -141,6 +141,11 @@ CASES = {
     "walk_terms_f64": lambda: steps_case(scene("tiny.toml", "run.neighbours='walk'", "terms.xsph=0.3",
                                                "terms.surface_tension=0.05", "terms.vorticity_confinement=0.01",
                                                "sph.density='continuity'"), "f64", 2),
+    # moving walls (motion.py): a sliding plate with the Morris no-slip wall, oscillating across the
+    # channel so that the wall's velocity and acceleration both enter (viscous drag, pressure, collision)
+    "moving_walls_f64": lambda: steps_case(scene("couette_2d.toml", "particles.spacing=5e-5",
+                                                 "domain.planes[1].amplitude=[0, 2e-5]",
+                                                 "domain.planes[1].frequency=20"), "f64", 3),
     "walk_dfsph_peers_f64": lambda: peers_case(scene("tiny.toml", "run.neighbours='walk'", "sph.solver='dfsph'",
                                                      "time.dt=0.002"), "f64", 2),
 }

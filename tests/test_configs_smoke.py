@@ -19,6 +19,7 @@ PROMISED = {
     "taylor_green_2d": (7_500, 12_500),  # "10,000 particles"
     "oscillating_drop_2d": (3_800, 6_300),  # "~5,000 particles"
     "poiseuille_2d": (720, 1_200),       # "960 particles"
+    "couette_2d": (720, 1_200),          # "960 particles"
     "tiny": (100, 1_000),                # "Under 1,000 particles"
 }
 

@@ -441,6 +441,7 @@ class CudaStages(Engine):
         self.walls = {"wall_kind": cuda.to_device(np.ascontiguousarray(w.kind)),
                       "wall_data": cuda.to_device(np.ascontiguousarray(w.data)),
                       "wall_tables": cuda.to_device(np.ascontiguousarray(w.tables)),
+                      "wall_motion": cuda.to_device(np.ascontiguousarray(w.motion)),
                       "lo": cuda.to_device(sim.model.lo)}
         # a stage's reduced values (stages.REDUCTIONS): the integer kinds, and the real maxima
         self.out = {"int64": cuda.device_array(MAX_REDUCED, dtype=np.int64),
@@ -453,6 +454,12 @@ class CudaStages(Engine):
         return cuda.to_device(np.full(shape, initial, dtype=self.dtype))
 
     # -- host <-> device ---------------------------------------------------------------------------
+    def walls_moved(self):
+        """The moving walls' rows and velocities (motion.py) to the device: a few hundred bytes."""
+        w = self.sim.walls
+        self.walls["wall_data"].copy_to_device(np.ascontiguousarray(w.data))
+        self.walls["wall_motion"].copy_to_device(np.ascontiguousarray(w.motion))
+
     def pull(self, state):
         """Bring the host mirror up to date (called by Simulation.state)."""
         if self.host_stale and not self.device_stale:

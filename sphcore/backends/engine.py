@@ -63,3 +63,7 @@ class Engine:
     def begin(self):
         """Before a stage: the backend's arrays are current and the scratch fits the state."""
         raise NotImplementedError
+
+    def walls_moved(self):
+        """The model's moving walls were moved (boundaries.Walls.at): where the backend keeps its own
+        copy of the wall rows, update it. The host backend reads the model's arrays: nothing to do."""

@@ -51,8 +51,10 @@ def density_row(kernel, eos, periodic, neighbours, continuity, prm, i, x, v, m, 
                 g = dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
                 rate += density_rate_pair(m[j], v[i, 0] - v[j, 0], v[i, 1] - v[j, 1], v[i, 2] - v[j, 2],
                                           g * dx, g * dy, g * dz)
-    drho, _, _, _ = wall_terms(kernel, prm, False, wall_kind, wall_data, wall_tables, x[i, 0], x[i, 1], x[i, 2],
-                               like(rho_i, 0.0), rho_i, like(rho_i, 0.0), like(rho_i, 0.0), like(rho_i, 0.0))
+    # the walls' density share: geometry only (no frame: the motion argument, here wall_tables, is not read)
+    drho, _, _, _ = wall_terms(kernel, prm, False, wall_kind, wall_data, wall_tables, wall_tables, False,
+                               x[i, 0], x[i, 1], x[i, 2], like(rho_i, 0.0), rho_i, like(rho_i, 0.0), like(rho_i, 0.0),
+                               like(rho_i, 0.0))
     theta = fill_fraction(rho_i, drho, prm.rho0)
     fill[i] = theta
     rho_i += theta * drho

@@ -38,17 +38,18 @@ def wrap(x, lo, L):
 
 
 @njit(cache=True, inline="always")
-def _reflect(v, i, c, vn, nc, prm):
-    """Velocity component c after a wall contact: tangential part damped by friction, normal part
-    reversed with restitution."""
-    vt = v[i, c] - vn * nc
-    v[i, c] = vt * (like(vt, 1.0) - prm.friction) - prm.restitution * vn * nc
+def _reflect(v, i, c, vn, nc, u, prm):
+    """Velocity component c after a wall contact, relative to the wall (moving at u along c): the
+    tangential part damped by friction, the normal part vn reversed with restitution."""
+    vt = v[i, c] - u - vn * nc
+    v[i, c] = u + vt * (like(vt, 1.0) - prm.friction) - prm.restitution * vn * nc
 
 
 @njit(cache=True, inline="always")
-def boundaries_row(periodic, prm, i, x, v, lo, wall_kind, wall_data):
-    """Wrap periodic axes; push a particle closer than wall_gap back out with restitution/friction;
-    returns 1 if it was found behind a wall (d < 0: a leak), else 0.   (walls.py)"""
+def boundaries_row(periodic, prm, i, x, v, lo, wall_kind, wall_data, wall_motion):
+    """Wrap periodic axes; push a particle closer than wall_gap back out with restitution/friction
+    (relative to the wall's velocity, motion.py); returns 1 if it was found behind a wall (d < 0: a
+    leak), else 0.   (walls.py)"""
     if periodic:
         x[i, 0] = wrap(x[i, 0], lo[0], prm.period_x)
         x[i, 1] = wrap(x[i, 1], lo[1], prm.period_y)
@@ -64,11 +65,12 @@ def boundaries_row(periodic, prm, i, x, v, lo, wall_kind, wall_data):
                 x[i, 0] += push * nx
                 x[i, 1] += push * ny
                 x[i, 2] += push * nz
-                vn = v[i, 0] * nx + v[i, 1] * ny + v[i, 2] * nz
+                ux, uy, uz = wall_motion[q, 0], wall_motion[q, 1], wall_motion[q, 2]
+                vn = (v[i, 0] - ux) * nx + (v[i, 1] - uy) * ny + (v[i, 2] - uz) * nz
                 if vn < 0.0:
-                    _reflect(v, i, 0, vn, nx, prm)
-                    _reflect(v, i, 1, vn, ny, prm)
-                    _reflect(v, i, 2, vn, nz, prm)
+                    _reflect(v, i, 0, vn, nx, ux, prm)
+                    _reflect(v, i, 1, vn, ny, uy, prm)
+                    _reflect(v, i, 2, vn, nz, uz, prm)
     return hit
 
 

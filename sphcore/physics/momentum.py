@@ -19,9 +19,9 @@ from sphcore.physics.real import like
 
 @njit(cache=True, inline="always")
 def acceleration_row(kernel, viscosity, periodic, neighbours, prm, i, x, v, m, rho, p, nbr, counts, cells, cell_begin,
-                     cell_end, wall_kind, wall_data, wall_tables, fill, a):
+                     cell_end, wall_kind, wall_data, wall_tables, wall_motion, fill, a):
     """a_i = pressure + viscosity + body force + wall pressure.   (pressure.py, viscosity.py,
-    external.py, walls.py)"""
+    external.py, walls.py; moving walls: motion.py)"""
     bx, by, bz = body_acceleration(prm)
     if prm.central_omega2 > 0.0:
         cx, cy, cz = central_acceleration(prm, x[i, 0], x[i, 1], x[i, 2])
@@ -62,16 +62,17 @@ def acceleration_row(kernel, viscosity, periodic, neighbours, prm, i, x, v, m, r
                 ax += g * (v[i, 0] - v[j, 0])
                 ay += g * (v[i, 1] - v[j, 1])
                 az += g * (v[i, 2] - v[j, 2])
-    _, wx, wy, wz = wall_terms(kernel, prm, True, wall_kind, wall_data, wall_tables, x[i, 0], x[i, 1], x[i, 2],
-                               p_i, rho_i, bx, by, bz)
+    _, wx, wy, wz = wall_terms(kernel, prm, True, wall_kind, wall_data, wall_tables, wall_motion, True,
+                               x[i, 0], x[i, 1], x[i, 2], p_i, rho_i, bx, by, bz)
     ax += fill[i] * wx
     ay += fill[i] * wy
     az += fill[i] * wz
     if viscosity == 3:  # Viscosity.MORRIS: no-slip walls
-        kv = fill[i] * wall_viscosity(prm, wall_kind, wall_data, wall_tables, x[i, 0], x[i, 1], x[i, 2], rho_i)
-        ax += kv * v[i, 0]
-        ay += kv * v[i, 1]
-        az += kv * v[i, 2]
+        kv, ux, uy, uz = wall_viscosity(prm, wall_kind, wall_data, wall_tables, wall_motion, x[i, 0], x[i, 1],
+                                        x[i, 2], rho_i)
+        ax += fill[i] * (kv * v[i, 0] - ux)
+        ay += fill[i] * (kv * v[i, 1] - uy)
+        az += fill[i] * (kv * v[i, 2] - uz)
     a[i, 0] = ax
     a[i, 1] = ay
     a[i, 2] = az

@@ -228,9 +228,13 @@ def _perpendicular(n1, n2):
 
 
 @njit(cache=True)
-def wall_terms(kernel, prm, want_force, kinds, data, tables, x, y, z, p_i, rho_i, bx, by, bz):
+def wall_terms(kernel, prm, want_force, kinds, data, tables, motion, frame, x, y, z, p_i, rho_i, bx, by, bz):
     """Wall contributions at (x, y, z): (delta rho, ax, ay, az) — density share when ``want_force``
-    is false, pressure acceleration when true (module docstring)."""
+    is false, pressure acceleration when true (module docstring). With ``frame`` the pressure behind
+    a moving wall is extrapolated with the body force in the wall's frame, b - a_w (``motion[q, 3:6]``;
+    Adami et al. 2012, eq. 27); where walls meet, the corner correction uses the first near wall's
+    frame. (Without ``frame``, ``motion`` is not read: the purely geometric push of
+    ``wall_density_gradient``.)"""
     H = prm.H
     drho = like(H, 0.0)
     ax = like(H, 0.0)
@@ -239,12 +243,22 @@ def wall_terms(kernel, prm, want_force, kinds, data, tables, x, y, z, p_i, rho_i
     near = 0
     d1 = d2 = d3 = H
     n1 = n2 = n3 = (like(H, 0.0), like(H, 0.0), like(H, 0.0))
+    cx = bx
+    cy = by
+    cz = bz
     for q in range(kinds.shape[0]):
         d, nx, ny, nz = signed_distance(kinds[q], data[q], x, y, z)
         if d >= H:
             continue
         if want_force:
-            b_n = bx * nx + by * ny + bz * nz
+            qx = bx
+            qy = by
+            qz = bz
+            if frame:
+                qx -= motion[q, 3]
+                qy -= motion[q, 4]
+                qz -= motion[q, 5]
+            b_n = qx * nx + qy * ny + qz * nz
             push = prm.rho0 / (rho_i * rho_i) * (like(p_i, -2.0) * p_i * table_lookup(tables[1], d, prm.wall_table_end)
                                                   + rho_i * b_n * table_lookup(tables[2], d, prm.wall_table_end))
             if push > 0.0:
@@ -252,9 +266,11 @@ def wall_terms(kernel, prm, want_force, kinds, data, tables, x, y, z, p_i, rho_i
                 ay += push * ny
                 az += push * nz
             g2 = prm.rho0 / rho_i * table_lookup(tables[3], d, prm.wall_table_end)
-            ax += g2 * (bx - b_n * nx)
-            ay += g2 * (by - b_n * ny)
-            az += g2 * (bz - b_n * nz)
+            ax += g2 * (qx - b_n * nx)
+            ay += g2 * (qy - b_n * ny)
+            az += g2 * (qz - b_n * nz)
+            if near == 0:
+                cx, cy, cz = qx, qy, qz
         else:
             drho += prm.rho0 * table_lookup(tables[0], d, prm.wall_table_end)
         if near == 0:
@@ -280,13 +296,13 @@ def wall_terms(kernel, prm, want_force, kinds, data, tables, x, y, z, p_i, rho_i
             da, na, db, nb = d2, n2, d3, n3
         if not _perpendicular(na, nb):
             continue
-        sw, fx, fy, fz = _corner_sums(kernel, prm, want_force, na, nb, nb, da, db, db, False, coef, bx, by, bz)
+        sw, fx, fy, fz = _corner_sums(kernel, prm, want_force, na, nb, nb, da, db, db, False, coef, cx, cy, cz)
         drho -= prm.rho0 * prm.inv_s * sw
         ax -= scale_f * fx
         ay -= scale_f * fy
         az -= scale_f * fz
     if near >= 3 and prm.dim3 and _perpendicular(n1, n2) and _perpendicular(n1, n3) and _perpendicular(n2, n3):
-        sw, fx, fy, fz = _corner_sums(kernel, prm, want_force, n1, n2, n3, d1, d2, d3, True, coef, bx, by, bz)
+        sw, fx, fy, fz = _corner_sums(kernel, prm, want_force, n1, n2, n3, d1, d2, d3, True, coef, cx, cy, cz)
         drho += prm.rho0 * prm.inv_s * sw
         ax += scale_f * fx
         ay += scale_f * fy
@@ -295,15 +311,25 @@ def wall_terms(kernel, prm, want_force, kinds, data, tables, x, y, z, p_i, rho_i
 
 
 @njit(cache=True)
-def wall_viscosity(prm, kinds, data, tables, x, y, z, rho_i):
-    """k such that the no-slip wall drag is a_i += k v_i: 2 mu / rho_i sum over near walls of Gv(d)
-    (module docstring); 0 away from walls."""
+def wall_viscosity(prm, kinds, data, tables, motion, x, y, z, rho_i):
+    """(k, ux, uy, uz) such that the no-slip wall drag is a_i += k v_i - u: k = 2 mu / rho_i sum over
+    near walls q of Gv(d_q), u = 2 mu / rho_i sum Gv(d_q) u_w,q (module docstring: behind a wall
+    moving at u_w the virtual fluid moves at u_w - beta (v_i - u_w), so v_i - v_j = beta (v_i - u_w));
+    zeros away from walls."""
     k = like(prm.H, 0.0)
+    ux = like(prm.H, 0.0)
+    uy = like(prm.H, 0.0)
+    uz = like(prm.H, 0.0)
     for q in range(kinds.shape[0]):
         d, _, _, _ = signed_distance(kinds[q], data[q], x, y, z)
         if d < prm.H:
-            k += table_lookup(tables[4], d, prm.wall_table_end)
-    return like(k, 2.0) * prm.mu / rho_i * k
+            gv = table_lookup(tables[4], d, prm.wall_table_end)
+            k += gv
+            ux += gv * motion[q, 0]
+            uy += gv * motion[q, 1]
+            uz += gv * motion[q, 2]
+    c = like(k, 2.0) * prm.mu / rho_i
+    return c * k, c * ux, c * uy, c * uz
 
 
 @njit(cache=True, inline="always")
@@ -319,6 +345,8 @@ def fill_fraction(rho_fluid, rho_wall, rho0):
 def wall_density_gradient(kernel, prm, wall_kind, wall_data, wall_tables, x, i, rho_i, theta):
     """g_i^wall = grad_i of the wall's density share theta rho0 Phi(d_i): the walls' pressure push at
     p_i = rho_i^2 / 2 without body force is -sum_virtual m grad W = -g_i^wall / theta.   (walls.py)"""
-    _, fx, fy, fz = wall_terms(kernel, prm, True, wall_kind, wall_data, wall_tables, x[i, 0], x[i, 1], x[i, 2],
-                               like(rho_i, 0.5) * rho_i * rho_i, rho_i, like(rho_i, 0.0), like(rho_i, 0.0), like(rho_i, 0.0))
+    # geometry only: no frame, so the motion argument (here wall_tables) is not read
+    _, fx, fy, fz = wall_terms(kernel, prm, True, wall_kind, wall_data, wall_tables, wall_tables, False,
+                               x[i, 0], x[i, 1], x[i, 2], like(rho_i, 0.5) * rho_i * rho_i, rho_i, like(rho_i, 0.0),
+                               like(rho_i, 0.0), like(rho_i, 0.0))
     return -theta * fx, -theta * fy, -theta * fz
