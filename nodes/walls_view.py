@@ -56,8 +56,15 @@ class _MeshDistance:
         return np.where(outside > 0, outside + np.maximum(d, 0.0), d)
 
 
+def moving_obstacles(scene) -> dict:
+    """{obstacle index: sphcore.motion.Motion} of the obstacles that move."""
+    from sphcore.motion import Motion
+    return {i: m for i, m in enumerate(Motion.of(ob) for ob in scene.obstacles) if m is not None}
+
+
 def obstacle_distance(scene):
-    """f(points (n, 3)) -> (n,) signed distance to the nearest obstacle, or None without obstacles."""
+    """f(points (n, 3), t = 0) -> (n,) signed distance to the nearest obstacle at time t (moving
+    obstacles displaced by X(t), sphcore/motion.py), or None without obstacles."""
     parts = []
     for shape, centre, R, ob in _placed(scene):
         if shape == "sphere":
@@ -79,15 +86,23 @@ def obstacle_distance(scene):
             parts.append(_MeshDistance(*grid))
     if not parts:
         return None
-    return lambda p: np.min(np.stack([f(p) for f in parts]), axis=0)
+    moving = moving_obstacles(scene)
+
+    def distance(p, t=0.0):
+        return np.min(np.stack([f(p - moving[i].displacement(t)) if i in moving else f(p)
+                                for i, f in enumerate(parts)]), axis=0)
+    return distance
 
 
-def obstacle_layer(scene, camera, box, iterations: int = 128):
-    """(rgb (H, W, 3) uint8, depth (H, W) float32, +inf where no obstacle) of the scene's obstacles
-    seen by ``camera`` (sphcore.render.Camera), or None if the scene has none."""
-    sdf = obstacle_distance(scene)
+def obstacle_layer(scene, camera, box, iterations: int = 128, t: float = 0.0, sdf=None):
+    """(rgb (H, W, 3) uint8, depth (H, W) float32, +inf where no obstacle) of the scene's obstacles at
+    time ``t`` seen by ``camera`` (sphcore.render.Camera), or None if the scene has none; ``sdf``:
+    the scene's obstacle_distance, if already built."""
+    sdf = sdf or obstacle_distance(scene)
     if sdf is None:
         return None
+    at_t, when = sdf, t  # (t is the rays' distance below)
+    sdf = lambda p: at_t(p, when)  # noqa: E731
     eye, right, up, forward = camera.basis()
     w, h, focal = camera.width, camera.height, camera.focal
     px, py = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)

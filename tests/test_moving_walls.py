@@ -167,3 +167,37 @@ def test_a_moving_sphere_gives_the_same_bits_on_two_peers_and_after_a_resume(tmp
     assert one.health.energy["watchdog"].startswith("off: moving walls do work")
     moved = np.linalg.norm(reference["v"], axis=1) > 0.5  # the dam break alone: g t ~ 0.15 m/s by now
     assert np.any(moved & (r < 0.05 + 2 * one.H))  # the fluid around the sphere was set in motion
+
+
+@pytest.mark.fast
+def test_the_viewer_draws_a_moving_obstacle_where_it_is_now(tmp_path):
+    # Given the moving sphere's scene, as the viewer sees it
+    from nodes.walls_view import moving_obstacles, obstacle_distance
+    scene = moving_sphere_scene(tmp_path)
+    motion = moving_obstacles(scene)[0]
+    sdf = obstacle_distance(scene)
+    # When its distance function is evaluated at t = 0 and t = 0.2 s
+    for t in (0.0, 0.2):
+        centre = np.array([0.1, 0.2, 0.0]) + motion.displacement(t)
+        # Then the sphere is centred where the simulation moved it
+        assert sdf(centre[None], t)[0] == pytest.approx(-0.05, abs=1e-12)
+        assert sdf((centre + [0.05, 0.0, 0.0])[None], t)[0] == pytest.approx(0.0, abs=1e-12)
+    assert sdf(np.array([[0.1, 0.2, 0.0]]), 0.2)[0] > 0.3  # it has left its starting place
+
+
+@pytest.mark.fast
+def test_the_composite_shows_a_moving_obstacle_where_it_is_now(tmp_path):
+    # Given the moving sphere's scene and its camera
+    from nodes.walls_view import obstacle_layer
+    from sphcore.render import SceneRenderer
+    scene = moving_sphere_scene(tmp_path)
+    sim = Simulation(scene, "f64")
+    r = SceneRenderer(scene, sim.walls.lo, sim.walls.hi)
+    # When the obstacle layer is traced at t = 0 and t = 0.2 s
+    hit = [np.isfinite(obstacle_layer(scene, r.camera, r.box, t=t)[1]) for t in (0.0, 0.2)]
+    # Then the sphere is drawn in both, X(0.2) = 0.4 m further right in the second (its 0.1 m
+    # diameter in pixels gives the image's scale)
+    cols = [np.nonzero(h.any(axis=0))[0] for h in hit]
+    assert all(len(c) > 3 for c in cols)
+    pixels_per_m = len(cols[0]) / 0.1
+    assert (cols[1].mean() - cols[0].mean()) / pixels_per_m == pytest.approx(0.4, rel=0.1)
