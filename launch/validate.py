@@ -2,7 +2,8 @@
 case, exit code 1 if any metric fails.
 
     sph validate CASE [--quick] [--out DIR]      CASE: hydrostatic, hydrostatic_3d, dam_break, dam_break_3d,
-                                                       taylor_green, oscillating_drop, poiseuille, couette
+                                                       taylor_green, oscillating_drop, poiseuille, couette,
+                                                       floating_box
     sph validate --all [--quick]
 
 Each case is a function of (quick, out folder) returning its metrics; ``--quick`` uses a coarser
@@ -494,6 +495,58 @@ def couette(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions | No
                           lambda y, t: couette_velocity(y, t, U, nu, L), "U", "Start-up Couette flow")
 
 
+def floating_box(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions | None = None) -> list[Metric]:
+    """A box of half the water's density floating in a tank (a floating body, heave only): its mean
+    draft over the last two seconds of four against Archimedes' (density ratio x height)."""
+    opts = opts or CaseOptions(backend)
+    dx = opts.dx or (0.02 if quick else 0.01)
+    scene = load_scene(CONFIGS / "floating_box_2d.toml", [f"particles.spacing={dx}", *opts.overrides])
+    box = scene.obstacles[0]
+    height = box.size[1]
+    expected = box.density / scene.fluid.rest_density * height
+    sim = Simulation(scene, opts.precision, opts.backend)
+    body = sim.model.walls.bodies[0]
+    t_end, window = 4.0, 2.0
+    clock = _Clock(sim, opts, "floating_box", t_end)
+    times, drafts, forces = [], [], []
+    while sim.t < t_end:
+        sim.step(dt_cap=t_end - sim.t)
+        clock.tick()
+        if sim.step_index % 20 == 0 or sim.t >= t_end:
+            s = sim.state
+            x = s.x[: s.n_owned]
+            far = np.abs(x[:, 0] - box.center[0]) > box.size[0] / 2 + 0.2  # the still water by the walls
+            surface = x[far, 1].max() + 0.5 * dx                              # top layer + dx/2
+            bottom = box.center[1] + body.x[1] - 0.5 * height
+            times.append(sim.t)
+            drafts.append(surface - bottom)
+            forces.append(body.force[1] / (body.mass * abs(scene.forces.gravity[1])))
+    clock.done()
+    times, drafts, forces = np.array(times), np.array(drafts), np.array(forces)
+    late = times >= t_end - window
+    draft = float(drafts[late].mean())
+    metrics = [Metric("floating_box.draft_relative", abs(draft - expected) / expected, 0.05,
+                      f"mean draft {100 * draft:.2f} cm over t = {t_end - window:g}-{t_end:g} s vs {100 * expected:.2f} cm; "
+                      f"{sim.n_particles} particles"),
+               Metric("floating_box.buoyancy_relative", abs(float(forces[late].mean()) - 1.0), 0.05,
+                      "mean fluid force / weight over the same window")]
+    if not opts.plot:
+        return metrics
+    plt = _plot()
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    ax.plot(times, 100 * drafts, "-", lw=1, label="draft (sphfluid)")
+    ax.axhline(100 * expected, color="k", lw=0.8, ls="--", label="Archimedes")
+    ax.axvspan(t_end - window, t_end, color="0.9", label="averaged")
+    ax.set_xlabel("t (s)")
+    ax.set_ylabel("draft (cm)")
+    ax.legend(fontsize=8)
+    ax.set_title(f"Floating box, density {box.density:g} kg/m^3, heave only, dx = {dx:g} m")
+    fig.tight_layout()
+    fig.savefig(out / "floating_box.png", dpi=100)
+    plt.close(fig)
+    return metrics
+
+
 def _start_up_flow(scene, opts, out, name, y0, L, scale, exact, scale_name, title) -> list[Metric]:
     """A channel flow from rest between plates at y0 and y0 + L against its series solution
     ``exact(y, t)``: the largest velocity error at Morris et al.'s five times, over ``scale``."""
@@ -543,7 +596,7 @@ def dam_break_3d(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions
 
 CASES = {"hydrostatic": hydrostatic, "hydrostatic_3d": hydrostatic_3d, "dam_break": dam_break, "dam_break_3d": dam_break_3d,
          "taylor_green": taylor_green, "oscillating_drop": oscillating_drop, "poiseuille": poiseuille,
-         "couette": couette}
+         "couette": couette, "floating_box": floating_box}
 
 
 def run_validate(names: list[str], quick: bool, out: Path, backend: str = "cpu", overrides: tuple = ()) -> int:

@@ -88,9 +88,17 @@ class FrameMaker:
                  "controls": self.controls, "camera": self.renderer.camera_name,
                  "events": self._take_events(),
                  "bytes_by_exchange": {k: int(v) for k, v in (self.exchange_bytes or {}).items()},
-                 "color_by": self.renderer.quantity, "range": [float(v) for v in self.renderer.range]}
+                 "color_by": self.renderer.quantity, "range": [float(v) for v in self.renderer.range],
+                 "bodies": body_displacements(sim)}
         self.controls = []
         return frame, stats, points
+
+
+def body_displacements(sim) -> dict:
+    """{obstacle index: [x, y, z]}: how far each floating body has moved (the viewer draws it there)."""
+    walls = sim.model.walls
+    first = walls.container_walls + len(sim.scene.domain.planes)  # the obstacles' rows follow the planes'
+    return {str(b.wall - first): [float(c) for c in b.x] for b in walls.bodies}
 
 
 def domain_box(scene):

@@ -59,7 +59,8 @@ import numpy as np
 
 from nodes import wire
 from nodes.rerun_sinks import sinks_for
-from nodes.walls_view import merge_layer, moving_obstacles, obstacle_distance, obstacle_layer, wall_meshes
+from nodes.walls_view import (body_shifts, floating_obstacles, merge_layer, moving_obstacles, obstacle_distance,
+                               obstacle_layer, wall_meshes)
 from nodes.zenoh_transport import zenoh_config
 from sphcore.output import write_summary
 from sphcore.render import LUT, RANK_COLOURS, Framelet, SceneRenderer, composite, draw_box
@@ -406,19 +407,20 @@ class Viewer:
             rec.log("events", rr.TextLog(f"step {step}: colour by {quantity}", level="INFO"))
             self._log_legend()
 
-    def image(self, frames, sim_time: float = 0.0):
-        """The composite of ``frames`` (sort-last), the obstacles (where they are at ``sim_time``)
-        merged by depth, the domain outline drawn over what is in front of it: (rgb, depth)."""
+    def image(self, frames, sim_time: float = 0.0, shifts=None):
+        """The composite of ``frames`` (sort-last), the obstacles (where they are at ``sim_time``; the
+        floating ones displaced by ``shifts``) merged by depth, the domain outline drawn over what is
+        in front of it: (rgb, depth)."""
         r = self.renderer
         cam = r.camera
         rgb, depth, _ = composite(frames, cam.width, cam.height)
-        moving = bool(moving_obstacles(self.scene))
+        moving = bool(moving_obstacles(self.scene) or floating_obstacles(self.scene))
         if r.camera_name not in self._layers or moving:  # moving obstacles: traced again every frame
             try:
                 if self._obstacle_sdf is None:
                     self._obstacle_sdf = obstacle_distance(self.scene) or False
-                self._layers[r.camera_name] = (obstacle_layer(self.scene, cam, r.box, t=sim_time,
-                                                              sdf=self._obstacle_sdf) if self._obstacle_sdf else None)
+                self._layers[r.camera_name] = (obstacle_layer(self.scene, cam, r.box, t=sim_time, sdf=self._obstacle_sdf,
+                                                              shifts=shifts) if self._obstacle_sdf else None)
             except (OSError, ValueError) as e:  # a mesh that cannot be read: the run says so itself
                 log.warning("viewer: obstacles not drawn: %s", e)
                 self._layers[r.camera_name] = None
@@ -448,9 +450,12 @@ class Viewer:
                 self.changes.append((step, text))
                 self._log_info()
         frames = [parts[r][0] for r in ranks]
-        rgb, depth = self.image(frames, sim_time)
+        shifts = body_shifts(self.scene, stats[ranks[0]].get("bodies"))  # floating bodies, as rank 0 has them
+        rgb, depth = self.image(frames, sim_time, shifts)
         for i, motion in moving_obstacles(self.scene).items():  # the 3D view's meshes follow them too
             rec.log(f"obstacles/{i}", rr.Transform3D(translation=motion.displacement(sim_time)))
+        for i, shift in shifts.items():
+            rec.log(f"obstacles/{i}", rr.Transform3D(translation=shift))
         jpeg = encode_jpeg(rgb, RGB_QUALITY)
         png, meter = encode_depth(depth)
         size = len(jpeg) + len(png)

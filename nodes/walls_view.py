@@ -62,6 +62,28 @@ def moving_obstacles(scene) -> dict:
     return {i: m for i, m in enumerate(Motion.of(ob) for ob in scene.obstacles) if m is not None}
 
 
+def floating_obstacles(scene) -> list:
+    """The indices of the floating obstacles (sphcore/motion.py FloatingBody): the peers say where they are."""
+    return [i for i, ob in enumerate(scene.obstacles) if ob.density > 0.0]
+
+
+def body_shifts(scene, bodies) -> dict:
+    """{obstacle index: displacement (3,)} from a frame's "bodies" statistic ({index: [x, y, z]}), off
+    the wire: only floating obstacles' entries of three finite numbers are kept."""
+    if not isinstance(bodies, dict):
+        return {}
+    floating, out = set(floating_obstacles(scene)), {}
+    for key, value in list(bodies.items())[:64]:
+        try:
+            i = int(key)
+            x = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            continue
+        if i in floating and x.shape == (3,) and np.all(np.isfinite(x)):
+            out[i] = x
+    return out
+
+
 def obstacle_distance(scene):
     """f(points (n, 3), t = 0) -> (n,) signed distance to the nearest obstacle at time t (moving
     obstacles displaced by X(t), sphcore/motion.py), or None without obstacles."""
@@ -88,21 +110,23 @@ def obstacle_distance(scene):
         return None
     moving = moving_obstacles(scene)
 
-    def distance(p, t=0.0):
-        return np.min(np.stack([f(p - moving[i].displacement(t)) if i in moving else f(p)
-                                for i, f in enumerate(parts)]), axis=0)
+    def distance(p, t=0.0, shifts=None):
+        """``shifts``: {obstacle index: displacement (3,)} of the floating bodies (from the peers)."""
+        shifts = shifts or {}
+        return np.min(np.stack([f(p - shifts[i]) if i in shifts else f(p - moving[i].displacement(t)) if i in moving
+                                else f(p) for i, f in enumerate(parts)]), axis=0)
     return distance
 
 
-def obstacle_layer(scene, camera, box, iterations: int = 128, t: float = 0.0, sdf=None):
+def obstacle_layer(scene, camera, box, iterations: int = 128, t: float = 0.0, sdf=None, shifts=None):
     """(rgb (H, W, 3) uint8, depth (H, W) float32, +inf where no obstacle) of the scene's obstacles at
-    time ``t`` seen by ``camera`` (sphcore.render.Camera), or None if the scene has none; ``sdf``:
-    the scene's obstacle_distance, if already built."""
+    time ``t`` (floating bodies displaced by ``shifts``) seen by ``camera`` (sphcore.render.Camera), or
+    None if the scene has none; ``sdf``: the scene's obstacle_distance, if already built."""
     sdf = sdf or obstacle_distance(scene)
     if sdf is None:
         return None
     at_t, when = sdf, t  # (t is the rays' distance below)
-    sdf = lambda p: at_t(p, when)  # noqa: E731
+    sdf = lambda p: at_t(p, when, shifts)  # noqa: E731
     eye, right, up, forward = camera.basis()
     w, h, focal = camera.width, camera.height, camera.focal
     px, py = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)

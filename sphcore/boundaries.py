@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sphcore.choices import Kernel, WallKind
-from sphcore.motion import Motion
+from sphcore.motion import FloatingBody, Motion
 from sphcore.physics.kernels import dw_dr, kernel_constants, w
 from sphcore.scene import Scene
 
@@ -40,17 +40,22 @@ class Walls:
     hi: np.ndarray          # (3,) upper corner
     container_walls: int    # the first walls belong to the container
     motion: np.ndarray      # (nw, 6) float: each wall's velocity (m/s) and acceleration (m/s^2) now
-    moves: tuple = ()       # (wall row, sphcore.motion.Motion) of the walls that move
+    moves: tuple = ()       # (wall row, motion.Motion or motion.FloatingBody) of the walls that move
     rest: np.ndarray | None = None  # (nw, 16+) float64: the rows at t = 0
     t: float = math.nan     # the time the rows and motion are at (s); none yet: moved before the first step
 
     # what changes as the walls move: not the walls' definition (Simulation's _same compares the rest)
     STATE = ("data", "motion", "t")
 
-    def at(self, t: float) -> bool:
-        """Move the walls to time ``t`` (sphcore/motion.py): their rows and velocities; False if no
-        wall moves (nothing changed)."""
-        if not self.moves:
+    @property
+    def bodies(self) -> list:
+        """The floating bodies (motion.FloatingBody), in wall order."""
+        return [m for _, m in self.moves if isinstance(m, FloatingBody)]
+
+    def at(self, t: float, force: bool = False) -> bool:
+        """Move the walls to time ``t`` (sphcore/motion.py; floating bodies: to their current state):
+        their rows and velocities; False if no wall moves (nothing changed)."""
+        if not self.moves or (self.t == t and not force):
             return False
         self.t = t
         for q, motion in self.moves:
@@ -129,7 +134,7 @@ def build_walls(scene: Scene, kernel: Kernel, H: float, dtype) -> Walls:
         kinds.append(WallKind.PLANE)
         rows.append(_row(point=pl.point, normal=nrm / np.linalg.norm(nrm)))
     for ob in scene.obstacles:
-        moving.append((len(kinds), Motion.of(ob)))
+        moving.append((len(kinds), floating_body(scene, ob, len(kinds)) if ob.density > 0.0 else Motion.of(ob)))
         centre = np.array(ob.center, dtype=float)
         Rob = rotation_matrix(ob.rotation)
         if ob.frame == "container":
@@ -161,6 +166,18 @@ def build_walls(scene: Scene, kernel: Kernel, H: float, dtype) -> Walls:
         moves=tuple((q, m) for q, m in moving if m is not None),
         rest=_pad_rows(rows, np.float64),
     )
+
+
+def floating_body(scene: Scene, ob, wall: int) -> FloatingBody:
+    """The floating body of obstacle ``ob`` (sphere or box), at rest where the scene puts it; its mass
+    is density x volume (x area per metre of depth in 2D)."""
+    if ob.shape == "sphere":
+        volume = math.pi * ob.radius ** 2 if scene.dim == 2 else 4.0 / 3.0 * math.pi * ob.radius ** 3
+    else:
+        volume = float(np.prod(ob.size[: scene.dim]))
+    free = np.zeros(3)
+    free[: scene.dim] = [1.0 if f else 0.0 for f in ob.free[: scene.dim]]
+    return FloatingBody(wall=wall, mass=ob.density * volume, free=free)
 
 
 def _pad_rows(rows, dtype) -> np.ndarray:

@@ -155,7 +155,7 @@ def sim_info(sim) -> dict:
     return {"step": sim.step_index, "t": sim.t, "dt": sim.dt, "dt_prev": sim.dt_prev, "leaks": sim.leaks,
             "max_neighbours": sim.max_neighbours, "max_compression": sim.max_compression,
             "limit_counts": sim.limit_counts, "last_limit": sim.last_limit, "precision": sim.precision,
-            "particles": sim.n_particles}
+            "particles": sim.n_particles, "bodies": [body.state() for body in sim.model.walls.bodies]}
 
 
 def scene_digest(scene_dict: dict) -> str:
@@ -286,9 +286,15 @@ MANIFEST_SCHEMA = {
     "last_limit": (_last_limit, "a time-step limit name or \"\""),
     "precision": (lambda v: v in ("f32", "f64"), "'f32' or 'f64'"),
     "particles": _integer(1),
+    "bodies": (lambda v: isinstance(v, list) and all(
+        isinstance(b, list) and len(b) == 9 and all(_number(-math.inf)[0](c) for c in b) for b in v),
+               "a list of floating bodies' [x, y, z, u, v, w, ax, ay, az] (finite numbers)"),
     "scene": (lambda v: isinstance(v, dict), "an object (the resolved scene)"),
     "scene_sha256": (lambda v: isinstance(v, str) and bool(_HEX64.match(v)), "64 hexadecimal digits"),
 }
+
+
+OPTIONAL = ("bodies",)  # absent from the checkpoints of versions before floating bodies (and of scenes without)
 
 
 def _short(value, limit: int = 60) -> str:
@@ -305,6 +311,8 @@ def check_manifest(manifest, where: str):
         found = manifest.get("format") if isinstance(manifest, dict) else type(manifest).__name__
         raise CheckpointError(f"{where}: format {found!r}, this version reads {FORMAT!r}")
     for name, (check, allowed) in MANIFEST_SCHEMA.items():
+        if name not in manifest and name in OPTIONAL:
+            continue
         if name not in manifest:
             raise CheckpointError(f"{where}: {name} is missing (expected {allowed})")
         if not check(manifest[name]):
@@ -390,6 +398,11 @@ def restore(sim, ckpt: Checkpoint):
         raise CheckpointError(f"{ckpt.path}: its particles do not match its scene (the checkpoint holds "
                               f"{len(a['id'])} particles, the scene makes {sim.n_particles}"
                               f"{'' if len(a['id']) != sim.n_particles else ' with other ids'})")
+    bodies = sim.model.walls.bodies
+    saved = m.get("bodies", [])
+    if len(saved) != len(bodies):
+        raise CheckpointError(f"{ckpt.path}: bodies: the checkpoint holds {len(saved)} floating bodies, its scene has "
+                              f"{len(bodies)}")
     carried = {name: a[name] for name in CARRIED}
     for name, values in sim.state.extra.items():  # what this solver carries (zeros if the file lacks it)
         key = EXTRA_PREFIX + name
@@ -399,3 +412,6 @@ def restore(sim, ckpt: Checkpoint):
     sim.leaks, sim.max_neighbours = int(m["leaks"]), int(m["max_neighbours"])
     sim.max_compression, sim.last_limit = float(m["max_compression"]), m["last_limit"]
     sim.limit_counts.update({k: int(v) for k, v in m["limit_counts"].items()})
+    for body, values in zip(bodies, saved):
+        body.set_state(values)
+    sim.model.walls.t = math.nan  # moved to the checkpoint's t (and bodies' state) before the next step

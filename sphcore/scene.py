@@ -240,6 +240,11 @@ class Obstacle:
     amplitude: tuple = _OBSTACLE_MOTION["amplitude"]
     frequency: float = _OBSTACLE_MOTION["frequency"]
     phase: float = _OBSTACLE_MOTION["phase"]
+    density: float = spec(0.0, "a floating body: its density (kg/m^3), moved by the fluid's force and the body "
+                               "forces (sphere and box; 0 = fixed, or moved as velocity/amplitude say)",
+                          range=(0.0, math.inf))
+    free: tuple = spec((True, True, True), "a floating body: the axes it may move along (translation only)",
+                       length=VEC)
 
 
 @dataclass(frozen=True)
@@ -800,6 +805,9 @@ def _check_combinations(s: Scene, files: bool = True) -> Scene:
     for key, item in [(f"domain.planes[{i}]", pl) for i, pl in enumerate(s.domain.planes)] + \
             [(f"obstacles[{i}]", ob) for i, ob in enumerate(s.obstacles)]:
         _check_motion(s, key, item)
+    for i, ob in enumerate(s.obstacles):
+        if ob.density > 0.0:
+            _check_floating(s, f"obstacles[{i}]", ob)
     if s.sph.solver == "dfsph" and s.time.integrator != "symplectic_euler":
         raise SceneError(f"time.integrator = {s.time.integrator!r}: sph.solver = 'dfsph' integrates with "
                          "'symplectic_euler' (its pressure solve predicts v* = v + dt a and then moves x by dt v*)")
@@ -831,6 +839,25 @@ def _check_motion(s, key: str, item):
                          "(Hz)")
     if item.frequency > 0.0 and not any(item.amplitude):
         raise SceneError(f"{key}.frequency = {item.frequency!r}: an oscillation needs a non-zero {key}.amplitude (m)")
+    if (any(item.velocity) or any(item.amplitude)) and s.sph.solver != "wcsph":
+        raise SceneError(f"{key}.velocity / amplitude: moving walls need sph.solver = 'wcsph' (DFSPH's solves do not "
+                         "see the walls move)")
+
+
+def _check_floating(s, key: str, ob):
+    """A floating body (sphcore/motion.py FloatingBody): a sphere or box, not also moved by prescription,
+    with the weakly compressible solver (DFSPH's pressure solve does not see the body move)."""
+    if ob.shape == "mesh":
+        raise SceneError(f"{key}.density = {ob.density!r}: only sphere and box obstacles can float (a mesh has no "
+                         "volume here)")
+    if any(ob.velocity) or any(ob.amplitude):
+        raise SceneError(f"{key}.density = {ob.density!r}: a floating body is moved by the fluid; give it no "
+                         f"{key}.velocity or {key}.amplitude")
+    if s.sph.solver != "wcsph":
+        raise SceneError(f"{key}.density = {ob.density!r}: floating bodies need sph.solver = 'wcsph'")
+    if not any(ob.free[: s.dim]):
+        raise SceneError(f"{key}.free = {list(ob.free[:s.dim])!r}: a floating body needs at least one free axis "
+                         "(or density = 0 for a fixed obstacle)")
 
 
 # Memory of one process, per particle and per grid cell, at float64 (f32 needs less): the state

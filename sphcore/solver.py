@@ -19,6 +19,7 @@ from sphcore.halo import NULL_HALO
 from sphcore.health import Health
 from sphcore.initial import generate_particles
 from sphcore.model import Model
+from sphcore.motion import FloatingBody
 from sphcore.scene import Scene
 from sphcore.solvers import SOLVERS
 from sphcore.state import ParticleState
@@ -212,6 +213,8 @@ class Simulation:
         new = self.changed_model(scene)
         if self._structure_changes(new):
             state = self.state  # on a GPU: downloaded, and uploaded again by the new backend
+            kept = {body.wall: body for body in self.model.walls.bodies}  # floating bodies go on where they are
+            new.walls.moves = tuple((q, kept.get(q, m) if isinstance(m, FloatingBody) else m) for q, m in new.walls.moves)
             self.model = new
             self.grid = new.host_grid
             self._add_extra(state)
@@ -279,6 +282,7 @@ class Simulation:
         yield from self._fields(halo, prm, commit=True)            # exchanges 1, 2; neighbours; rho, p
         yield from self.solver.prepare(halo, prm)                  # DFSPH: v -> v (divergence-free)
         yield from self._accelerations(halo, prm)                  # x, v, rho, p     -> a (+ drho)
+        body_forces = yield from self._body_forces(halo, prm)      # floating bodies: the fluid's force
         if self.use_xsph:
             self._run(st.XSPH, prm=prm)                            # x, v, rho        -> dv
         if self.use_shifting:
@@ -292,6 +296,9 @@ class Simulation:
             if self.use_diffusion:
                 e.run(st.DENSITY_UPDATE, dt=f(dt))                 # drho             -> carried rho
             e.run(st.INTEGRATE, dt=f(dt), dt_prev=f(self.dt_prev))
+            for body, force in zip(self.model.walls.bodies, body_forces):  # floating bodies: F, b -> a, u, X
+                body.advance(force, (prm.gravity_x + prm.external_x, prm.gravity_y + prm.external_y,
+                                     prm.gravity_z + prm.external_z), dt)
             self._move_walls(self.t + dt)                          # the collision guard: walls at t + dt
             self.leaks += int(e.run(st.BOUNDARIES, prm=prm))
         self.dt_prev = dt
@@ -300,9 +307,22 @@ class Simulation:
         self.step_index += 1
         yield from self.health.after_step(halo)                   # every K steps: the energy watchdog
 
+    def _body_forces(self, halo, prm):
+        """Generator: the fluid's force on each floating body (N; N/m in 2D), summed exactly over all
+        peers (physics/bodies.py)."""
+        forces = []
+        for k, body in enumerate(self.model.walls.bodies):
+            quantum = self.dtype.type(body.quantum((prm.gravity_x + prm.external_x, prm.gravity_y + prm.external_y,
+                                                    prm.gravity_z + prm.external_z)))  # the kernel's, exactly
+            units = self._run(st.BODY_REACTION, prm=prm, wall=body.wall, quantum=quantum)
+            quantum = float(quantum)
+            units = yield from halo.reduce_sums(self, f"body{k}", units)
+            forces.append(np.array(units, dtype=np.float64) * quantum)
+        return forces
+
     def _move_walls(self, t: float):
         """Moving walls (motion.py) to time t, on the backend too; nothing for static walls."""
-        if self.model.walls.t != t and self.model.walls.at(t):
+        if self.model.walls.at(t):
             self.engine.walls_moved()
 
     def _fields(self, halo, prm, commit):

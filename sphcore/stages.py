@@ -31,6 +31,7 @@ from sphcore.physics.continuity import density_update_row, diffusion_row
 from sphcore.physics.density import density_row
 from sphcore.physics.dfsph import dfsph_factor_row, dfsph_finish_row, dfsph_kick_row, dfsph_source_row, dfsph_update_row
 from sphcore.physics.drag import drag_row
+from sphcore.physics.bodies import body_reaction_row
 from sphcore.physics.integration import boundaries_row, integrate_row, statistics_row
 from sphcore.physics.momentum import acceleration_row
 from sphcore.physics.shifting import shifting_row
@@ -55,7 +56,7 @@ CHOICES = MappingProxyType({
 })
 
 # Every argument a row function may name: name -> (type, meaning and unit). Types: "params" (the
-# Params NamedTuple), "float" (a scalar in the run's precision), "bool", "vec" (n, 3) and "row" (n,)
+# Params NamedTuple), "float" (a scalar in the run's precision), "int", "bool", "vec" (n, 3) and "row" (n,)
 # arrays in the run's precision, "nbr" (n, capacity) int32 neighbour lists (column-major on the
 # GPU), "counts" (n,) int32, "cells" (grid.Cells), "cell_rows" (cells,) int64, "kinds" (walls,)
 # int32, "table" 2-D float arrays.
@@ -92,6 +93,8 @@ ARGUMENTS = MappingProxyType({
     "commit": ("bool", "continuity: store the advanced carried density"),
     "store": ("bool", "DFSPH: store the solved kappa and p"),
     "coefficient": ("float", "a force term's scene value (Stage.key), in the run's precision"),
+    "wall": ("int", "a floating body's wall row (physics/bodies.py)"),
+    "quantum": ("float", "a floating body's force unit (N; N/m in 2D): the exact sum's integer step"),
 })
 
 
@@ -222,12 +225,14 @@ DFSPH_FINISH = Stage("dfsph_finish", dfsph_finish_row, writes=("a", "p", "kappa"
 DENSITY_UPDATE = Stage("density_update", density_update_row, writes=("rho_c",)).check()
 INTEGRATE = Stage("integrate", integrate_row, writes=("x", "v")).check()
 BOUNDARIES = Stage("boundaries", boundaries_row, writes=("x", "v"), reduce=("sum",)).check()  # leaks
+BODY_REACTION = Stage("body_reaction", body_reaction_row, writes=(), reduce=("sum", "sum", "sum")).check()  # F
 
 # Force terms: each adds to a after FORCES, in this order, when its scene key is > 0
 FORCE_TERMS = (SURFACE_TENSION, DRAG)
 
 STAGES = (DENSITY, DFSPH_FACTOR, FORCES, DIFFUSION, *FORCE_TERMS, VORTICITY, CONFINEMENT, XSPH, SHIFTING,
-          STATISTICS, DFSPH_KICK, DFSPH_SOURCE, DFSPH_UPDATE, DFSPH_FINISH, DENSITY_UPDATE, INTEGRATE, BOUNDARIES)
+          STATISTICS, DFSPH_KICK, DFSPH_SOURCE, DFSPH_UPDATE, DFSPH_FINISH, DENSITY_UPDATE, INTEGRATE, BOUNDARIES,
+          BODY_REACTION)
 
 
 def covering_choices(stage: Stage) -> list[dict]:

@@ -86,6 +86,8 @@ def stages_case(sc, precision, warm_steps=5, steps=3) -> dict:
     out["steps"] = compare(cpu, gpu)
     out["dt_rel"] = abs(cpu.dt - gpu.dt) / cpu.dt
     out["leaks"] = [cpu.leaks, gpu.leaks]
+    for b_cpu, b_gpu in zip(cpu.model.walls.bodies, gpu.model.walls.bodies):  # floating bodies: moved alike
+        out["body_x"] = max(out.get("body_x", 0.0), float(np.max(np.abs(b_cpu.x - b_gpu.x))) / _scales(cpu)["x"])
     return out
 
 
@@ -100,6 +102,8 @@ def steps_case(sc, precision, steps) -> dict:
     out = compare(cpu, gpu)
     out["dt_rel"] = abs(cpu.dt - gpu.dt) / cpu.dt
     out["leaks"] = [cpu.leaks, gpu.leaks]
+    for b_cpu, b_gpu in zip(cpu.model.walls.bodies, gpu.model.walls.bodies):  # floating bodies: moved alike
+        out["body_x"] = max(out.get("body_x", 0.0), float(np.max(np.abs(b_cpu.x - b_gpu.x))) / _scales(cpu)["x"])
     return out
 
 
@@ -146,6 +150,9 @@ CASES = {
     "moving_walls_f64": lambda: steps_case(scene("couette_2d.toml", "particles.spacing=5e-5",
                                                  "domain.planes[1].amplitude=[0, 2e-5]",
                                                  "domain.planes[1].frequency=20"), "f64", 3),
+    # a floating body: its force, the reaction to its wall's terms, reduced on the device
+    "floating_f64": lambda: steps_case(scene("floating_box_2d.toml", "particles.spacing=0.04",
+                                             "forces.ramp_time=0.001"), "f64", 5),
     "walk_dfsph_peers_f64": lambda: peers_case(scene("tiny.toml", "run.neighbours='walk'", "sph.solver='dfsph'",
                                                      "time.dt=0.002"), "f64", 2),
 }

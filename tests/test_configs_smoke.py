@@ -20,6 +20,7 @@ PROMISED = {
     "oscillating_drop_2d": (3_800, 6_300),  # "~5,000 particles"
     "poiseuille_2d": (720, 1_200),       # "960 particles"
     "couette_2d": (720, 1_200),          # "960 particles"
+    "floating_box_2d": (3_000, 5_000),   # "~4,000 particles"
     "tiny": (100, 1_000),                # "Under 1,000 particles"
 }
 

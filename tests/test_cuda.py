@@ -32,7 +32,8 @@ TOL = {"f64": {"x": 1e-12, "v": 1e-12, "rho": 1e-12, "p": 1e-12, "a": 1e-11},
 # The cases in two groups of about equal cost, run side by side (the suite's other tests wait for
 # this fixture, so the second core would otherwise idle through its ~3-5 minutes)
 GROUPS = (["dfsph_f64", "tiny_f64", "terms_f64", "obstacle_f64", "walk_terms_f64", "moving_walls_f64"],
-          ["dfsph_peers_f64", "tiny_f32", "periodic_f64", "peers_f64", "continuity_f64", "walk_dfsph_peers_f64"])
+          ["dfsph_peers_f64", "tiny_f32", "periodic_f64", "peers_f64", "continuity_f64", "walk_dfsph_peers_f64",
+           "floating_f64"])
 
 
 def _parity(simulator: bool) -> dict:
@@ -85,12 +86,14 @@ def test_float32_steps_match_cpu(parity):
 
 
 @pytest.mark.parametrize("case", ["terms_f64", "periodic_f64", "obstacle_f64", "dfsph_f64", "continuity_f64",
-                                  "walk_terms_f64", "moving_walls_f64"])
+                                  "walk_terms_f64", "moving_walls_f64", "floating_f64"])
 def test_options_match_cpu(parity, case):
     """Optional terms (XSPH, surface tension, vorticity confinement), leapfrog, Morris and Müller
     viscosity, linear EOS, cubic spline and Müller kernels, periodic axes, an obstacle, the DFSPH
-    solver (its iterations, warm start and error reduction on the device), moving walls."""
+    solver (its iterations, warm start and error reduction on the device), moving walls, a floating
+    body (where it moved to: body_x)."""
     _check(parity[case], "f64")
+    assert parity[case].get("body_x", 0.0) <= TOL["f64"]["x"]
 
 
 @pytest.mark.parametrize("case", ["peers_f64", "dfsph_peers_f64", "walk_dfsph_peers_f64"])

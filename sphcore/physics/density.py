@@ -15,7 +15,7 @@ from sphcore.physics.continuity import density_rate_pair
 from sphcore.physics.eos import pressure
 from sphcore.physics.kernels import dw_dr_over_r
 from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
-from sphcore.physics.walls import fill_fraction, wall_density_gradient, wall_terms
+from sphcore.physics.walls import fill_fraction, moving_wall_rate, wall_density_gradient, wall_terms
 from sphcore.physics.real import like
 
 
@@ -27,10 +27,11 @@ def density_pair(kernel, m_j, r_ij, H, s_w):
 
 @njit(cache=True, inline="always")
 def density_row(kernel, eos, periodic, neighbours, continuity, prm, i, x, v, m, nbr, counts, cells, cell_begin,
-                cell_end, wall_kind, wall_data, wall_tables, dt_prev, commit, rho_c, rho, p, fill):
+                cell_end, wall_kind, wall_data, wall_tables, wall_motion, dt_prev, commit, rho_c, rho, p, fill):
     """rho_i = m_i W(0) + sum_j m_j W_ij + theta_i rho0 Phi(d_i);  p_i = EOS(rho_i); fill_i = theta_i.
     With ``continuity``: rho_i = rho_c[i] + dt_prev D rho_i/Dt, the carried density advanced by the
     continuity equation over the previous step with the velocities that moved the particles here
+    (relative to a moving wall's for its share, motion.py)
     (stored back if ``commit``; a carried 0 starts at rho0). Returns i's neighbour count twice (their
     sum and maximum over the rows are the step's neighbour statistics). (density.py, continuity.py,
     eos.py, walls.py)"""
@@ -63,10 +64,11 @@ def density_row(kernel, eos, periodic, neighbours, continuity, prm, i, x, v, m, 
             rho_c[i] = prm.rho0
             rho_i = rho_c[i]
         else:
-            # the wall's share theta rho0 Phi(d) changes at its gradient . v_i
+            # the wall's share theta rho0 Phi(d) changes at its gradient . (v_i - u_wall)
             r = rho_c[i]
             wx, wy, wz = wall_density_gradient(kernel, prm, wall_kind, wall_data, wall_tables, x, i, r, theta)
             rate += wx * v[i, 0] + wy * v[i, 1] + wz * v[i, 2]
+            rate -= moving_wall_rate(kernel, prm, wall_kind, wall_data, wall_tables, wall_motion, x, i, r, theta)
             rho_i = r + dt_prev * rate
             if commit:
                 rho_c[i] = rho_i

@@ -350,3 +350,19 @@ def wall_density_gradient(kernel, prm, wall_kind, wall_data, wall_tables, x, i, 
                                x[i, 0], x[i, 1], x[i, 2], like(rho_i, 0.5) * rho_i * rho_i, rho_i, like(rho_i, 0.0),
                                like(rho_i, 0.0), like(rho_i, 0.0))
     return -theta * fx, -theta * fy, -theta * fz
+
+
+@njit(cache=True, inline="always")
+def moving_wall_rate(kernel, prm, wall_kind, wall_data, wall_tables, wall_motion, x, i, rho_i, theta):
+    """sum over the moving walls q of g_i^q . u_q: how fast the walls' density share at row i grows
+    because the walls move (u_q their velocity, g_i^q the gradient of wall q's share alone, as in
+    ``wall_density_gradient``); 0 for walls at rest, which cost only the test of their velocity."""
+    rate = like(rho_i, 0.0)
+    for q in range(wall_kind.shape[0]):
+        ux, uy, uz = wall_motion[q, 0], wall_motion[q, 1], wall_motion[q, 2]
+        if ux == 0.0 and uy == 0.0 and uz == 0.0:
+            continue
+        gx, gy, gz = wall_density_gradient(kernel, prm, wall_kind[q:q + 1], wall_data[q:q + 1], wall_tables, x, i,
+                                           rho_i, theta)
+        rate += gx * ux + gy * uy + gz * uz
+    return rate
