@@ -102,6 +102,10 @@ class NullHalo:
         return value
         yield
 
+    def reduce_sums(self, sim, phase, values, step=None):
+        return np.asarray(values, dtype=np.int64)
+        yield
+
 
 NULL_HALO = NullHalo()
 
@@ -330,6 +334,22 @@ class PeerHalo:
             msg = yield from self.transport.recv(
                 q, (step, phase), lambda m, q=q: expect_arrays(m, expected, f"{phase} from peer {q}"))
             total += int(msg["sum"][0])
+        return total
+
+    def reduce_sums(self, sim, phase, values, step=None):
+        """Global sums of an int64 vector (exact and order independent, like ``reduce_sum``): the
+        probes' partial sums (sphcore/probes.py). ``step`` tags the message (default: the step the
+        simulation is at); ``phase`` must be unique within that step."""
+        step = sim.step_index if step is None else step
+        mine = np.ascontiguousarray(values, dtype=np.int64)
+        for q in self.others:
+            self._send(q, (step, phase), {"sums": mine}, "reduce")
+        total = mine.copy()
+        expected = {"sums": (mine.shape, np.int64)}
+        for q in self.others:
+            msg = yield from self.transport.recv(
+                q, (step, phase), lambda m, q=q: expect_arrays(m, expected, f"{phase} from peer {q}"))
+            total += msg["sums"]
         return total
 
     def reduce_max(self, sim, stats):

@@ -148,6 +148,8 @@ def scene_report(scene: Scene) -> dict:
     H = scene.sph.support * dx
     walls = build_walls(scene, KERNELS[scene.sph.kernel], H, np.float64)
     filled = fill_blocks(scene, walls)
+    from sphcore.probes import check_inside
+    check_inside(scene, walls)  # SceneError for a probe outside the domain
     counts = [len(x) for x, _ in filled]
     n = sum(counts)
     est = resource_estimate(scene)

@@ -19,6 +19,7 @@ from sphcore.halo import NULL_HALO
 from sphcore.health import Health
 from sphcore.initial import generate_particles
 from sphcore.model import Model
+from sphcore.probes import Probes
 from sphcore.scene import Scene
 from sphcore.solvers import SOLVERS
 from sphcore.state import ParticleState
@@ -119,6 +120,7 @@ class Simulation:
         else:
             self.engine = cpu.CpuStages(self)
         self.health = Health(self)  # unconverged solves, the energy watchdog (health.py)
+        self.probes = Probes(self)  # the scene's [[probes]] (probes.py)
 
     @property
     def prm(self):
@@ -296,6 +298,7 @@ class Simulation:
         self.dt = dt
         self.t += dt
         self.step_index += 1
+        yield from self.probes.after_step(halo)                   # every K steps: the probes (x, m, rho, p)
         yield from self.health.after_step(halo)                   # every K steps: the energy watchdog
 
     def _fields(self, halo, prm, commit):
