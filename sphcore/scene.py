@@ -851,6 +851,8 @@ def _check_probes(s: Scene):
             raise SceneError(f"{key}.name = {probe.name!r}: already the name of probes[{seen[probe.name]}]; probe "
                              "names must be unique")
         seen[probe.name] = i
+        if s.dim == 2 and probe.at[2] != 0.0:
+            raise SceneError(f"{key}.at = {list(probe.at)!r}: z must be 0 in 2D (the particles lie in z = 0)")
         if probe.kind == "height" and not any(s.forces.gravity):
             raise SceneError(f"{key}.kind = 'height': needs forces.gravity (the vertical is the direction opposite "
                              f"gravity), but forces.gravity = {list(s.forces.gravity[: s.dim])!r}")
