@@ -60,8 +60,8 @@ from pathlib import Path
 import numpy as np
 
 from sphcore.choices import KERNELS, Kernel
+from sphcore.initial import check_probes_inside, outside_domain
 from sphcore.physics.kernels import kernel_constants
-from sphcore.scene import SceneError
 
 DRY_FRACTION = 0.05          # pressure: phi below this reads 0 Pa (dry)
 SURFACE_FRACTION = 0.5       # height: the surface is the highest point with phi >= this
@@ -99,23 +99,6 @@ def vertical(scene) -> np.ndarray:
     return -g / norm if norm > 0.0 else np.zeros(3)
 
 
-def check_inside(scene, walls):
-    """SceneError naming the probe whose point lies outside the domain (beyond a container wall or
-    a plane, or outside the bounds of container = 'none' or of a periodic axis); a point on a wall
-    is inside."""
-    if not scene.probes:
-        return
-    from sphcore.initial import _outside_domain
-    pts = np.array([p.at for p in scene.probes], dtype=np.float64)
-    outside = _outside_domain(walls, scene, pts, scene.particles.spacing)
-    for i in np.nonzero(outside)[0]:
-        p = scene.probes[i]
-        lo = [round(float(v), 6) for v in walls.lo[: scene.dim]]
-        hi = [round(float(v), 6) for v in walls.hi[: scene.dim]]
-        raise SceneError(f"probes[{i}].at = {list(p.at[: scene.dim])!r}: outside the domain (probe "
-                         f"{p.name!r}); the domain's walls bound it within {lo} .. {hi}")
-
-
 class Probes:
     """The probes of one run (``Simulation.probes``), fixed when the run starts. ``last``: the most
     recent sample, (step, t, values) with one float per probe in scene order, or None;
@@ -132,7 +115,7 @@ class Probes:
         if not self.items:
             return
         model = sim.model
-        check_inside(scene, model.walls)
+        check_probes_inside(scene, model.walls)
         self.kernel = KERNELS[scene.sph.kernel]
         self.H = float(model.H)
         self.s_w = kernel_constants(self.kernel, scene.dim, self.H)[0]
@@ -165,8 +148,7 @@ class Probes:
                 s_lo, s_hi = max(s_lo, min(a, b)), min(s_hi, max(a, b))
         ds = scene.particles.spacing / SAMPLES_PER_SPACING
         s = s_lo + ds * np.arange(int(math.floor((s_hi - s_lo) / ds + 1e-9)) + 1)
-        from sphcore.initial import _outside_domain
-        inside = ~_outside_domain(walls, scene, at + s[:, None] * self.e, scene.particles.spacing)
+        inside = ~outside_domain(walls, scene, at + s[:, None] * self.e, scene.particles.spacing)
         return s[inside]
 
     # -- the measurement -----------------------------------------------------------------------

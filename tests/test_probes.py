@@ -235,3 +235,44 @@ def test_the_hydrostatic_tank_measured_by_its_probes_passes(tmp_path, capsys):
     lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("hydrostatic_probes.")]
     assert len(lines) == 3 and all(line.split()[3] == "PASS" for line in lines), lines
     assert (tmp_path / "hydrostatic_probes.png").stat().st_size > 0
+
+
+# -- the viewer ------------------------------------------------------------------------------------
+def test_the_recording_plots_every_probe_sample_at_its_step(tmp_path):
+    # Given a recorded run with frames every 20 steps and probes every 3
+    from nodes.recording import blueprint, entity_steps
+    probe_scene(tmp_path)
+    out = tmp_path / "out"
+    assert main(["run", str(tmp_path / "scene.toml"), "--set", SMALL[0], "--set", SMALL[1], "--set", "render.every=20",
+                 "--precision", "f64", "--steps", "60", "--out", str(out), "--quiet"]) == 0
+    # Then every sample is in the recording at its own step, under probes/<name>, and the blueprint
+    # plots them (pressure and height apart)
+    steps = entity_steps(out / "run.rrd")
+    for name in ("p_column", "p_left_wall", "p_right_wall", "h_column"):
+        assert steps.get(f"/probes/{name}") == list(range(3, 61, 3)), (name, steps.get(f"/probes/{name}"))
+    views = {v["name"]: v for v in blueprint(out / "run.rrd")["views"]}
+    assert views["Probes: pressure (Pa)"]["origin"] == "/probes"
+    assert "Probes: surface height (m)" in views
+
+
+@pytest.mark.fast
+def test_malformed_probe_statistics_from_the_wire_are_skipped(tmp_path):
+    import time
+
+    from nodes.recording import entity_steps
+    from nodes.viewer import Viewer, open_recording
+    from sphcore.render import Framelet
+    sc = probe_scene(tmp_path, PROBES, "particles.spacing=0.05")
+    rec = open_recording("test", tmp_path / "r.rrd")
+    v = Viewer(sc, ((0.0, 0.0, 0.0), (1.6, 0.6, 0.0)), rec, world=1, particles=12)
+    empty = Framelet(0, 0, 0, np.zeros((0, 0, 3), np.uint8), np.zeros((0, 0), np.float32), np.zeros((0, 0), np.int64))
+    stats = {"sim_time": 0.1, "particles": 12, "bytes_sent": 0, "stage_ms": {}, "kinetic_energy": 0.0,
+             "max_density_deviation": 0.0, "wall_time": time.time()}
+    v.add(4, 0, empty, dict(stats, probes={"names": ["a", "b"], "samples": [
+        [1, 0.01, [1.0, None]], [2, "x", [1.0, 2.0]], [3, 0.03, [1.0]], "bad", [4, 0.04, [float("inf"), 1.0]]]}))
+    v.add(8, 0, empty, dict(stats, probes={"names": ["../../x"], "samples": [[5, 0.05, [1.0]]]}))
+    v.close()
+    del rec
+    steps = entity_steps(tmp_path / "r.rrd")
+    assert steps.get("/probes/a") == [1] and "/probes/b" not in steps, steps
+    assert not [e for e in steps if e.startswith("/probes/") and e not in ("/probes/a",)]
