@@ -186,16 +186,18 @@ class Probes:
             e = self.e
             along = rel[:, 0] * e[0] + rel[:, 1] * e[1] + rel[:, 2] * e[2]
             r2 = rel[:, 0] * rel[:, 0] + rel[:, 1] * rel[:, 1] + rel[:, 2] * rel[:, 2]
-            near = []  # within H of the line (a loose filter: the kernel itself cuts at r = H)
-            if len(line):
-                near = np.nonzero((r2 - along * along < 1.01 * H2) & (along > line[0] - self.H)
-                                  & (along < line[-1] + self.H))[0]
+            near = np.nonzero(r2 - along * along < 1.01 * H2)[0]  # within H of the line (W cuts exactly)
+            # each particle meets only the samples within H of it along the line
+            first = np.searchsorted(line, along[near] - self.H, "left")
+            count = np.searchsorted(line, along[near] + self.H, "right") - first
+            pair = np.repeat(np.arange(len(near)), count)
+            sample = np.repeat(first - np.cumsum(count) + count, count) + np.arange(int(count.sum()))
+            j = near[pair]
+            d = rel[j] - line[sample][:, None] * e[None, :]
+            w = kernel_values(self.kernel, np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]),
+                              self.H, self.s_w)
             units = np.zeros(len(line), dtype=np.int64)
-            if len(near):
-                d = rel[near][:, None, :] - line[None, :, None] * e[None, None, :]  # (particles, samples, 3)
-                r2 = d[:, :, 0] * d[:, :, 0] + d[:, :, 1] * d[:, :, 1] + d[:, :, 2] * d[:, :, 2]
-                w = kernel_values(self.kernel, np.sqrt(r2), self.H, self.s_w)
-                units = self._units(V[near][:, None] * w, FRACTION_QUANTUM).sum(axis=0)
+            np.add.at(units, sample, self._units(V[j] * w, FRACTION_QUANTUM))  # integers: exact in any order
             out.append(units)
         return np.concatenate(out) if out else np.zeros(0, dtype=np.int64)
 
