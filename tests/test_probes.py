@@ -101,6 +101,18 @@ def test_a_probe_outside_the_domain_is_refused_before_the_first_step_and_sph_run
 
 
 @pytest.mark.fast
+def test_the_resolved_scene_toml_holds_the_probes_and_reads_back_the_same(tmp_path):
+    import dataclasses
+
+    from sphcore.scene import scene_toml
+    sc = probe_scene(tmp_path, PROBES, *SMALL)
+    (tmp_path / "resolved.toml").write_text(scene_toml(sc.to_dict()))
+    again = load_scene(tmp_path / "resolved.toml")
+    assert dataclasses.replace(again, source="") == dataclasses.replace(sc, source="")
+    assert [p.name for p in again.probes] == ["p_column", "p_left_wall", "p_right_wall", "h_column"]
+
+
+@pytest.mark.fast
 def test_probes_cannot_change_during_a_run_but_their_period_can(tmp_path):
     from sphcore.scene import key_control, live_change, LIVE
     sc = probe_scene(tmp_path)
