@@ -3,7 +3,7 @@ case, exit code 1 if any metric fails.
 
     sph validate CASE [--quick] [--out DIR]      CASE: hydrostatic, hydrostatic_3d, dam_break, dam_break_3d,
                                                        taylor_green, oscillating_drop, poiseuille, couette,
-                                                       floating_box
+                                                       floating_box, hydrostatic_probes
     sph validate --all [--quick]
 
 Each case is a function of (quick, out folder) returning its metrics; ``--quick`` uses a coarser
@@ -594,9 +594,83 @@ def dam_break_3d(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions
     return dam_break(quick, out, backend, opts, dim=3)
 
 
+# The probes of the hydrostatic tank: pressure at five depths on the centre line and on the side
+# wall, the free-surface height at three places (sphcore/probes.py)
+PROBE_DEPTHS = (0.05, 0.15, 0.25, 0.35, 0.45)  # y (m) of the pressure probes; the fill height is 0.5 m
+PROBE_HEIGHT_X = (0.1, 0.25, 0.4)              # x (m) of the height probes
+
+
+def hydrostatic_probes(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions | None = None) -> list[Metric]:
+    """The 2D hydrostatic tank measured by its probes ([[probes]], every 10 steps): the pressure
+    probes against rho0 g (H0 - y) and the height probes against the fill height H0 (the block's
+    top, 0.5 m), each averaged over the samples of the last SETTLE_WINDOW seconds."""
+    from sphcore.scene import scene_from_dict
+    opts = opts or CaseOptions(backend)
+    dx = opts.dx or (0.02 if quick else 0.01)
+    base = load_scene(CONFIGS / "hydrostatic_2d.toml", [f"particles.spacing={dx}", *opts.overrides])
+    fill = base.fluid.blocks[0].max[1]
+    width = base.fluid.blocks[0].max[0]
+    probes = ([{"name": f"p_centre_{y:g}", "kind": "pressure", "at": [0.5 * width, y]} for y in PROBE_DEPTHS]
+              + [{"name": f"p_wall_{y:g}", "kind": "pressure", "at": [0.0, y]} for y in PROBE_DEPTHS]
+              + [{"name": f"h_{x:g}", "kind": "height", "at": [x, 0.1]} for x in PROBE_HEIGHT_X])
+    data = base.to_dict()
+    data["probes"] = probes
+    data["output"]["probes_every"] = 10
+    scene = scene_from_dict(data, source=base.source)
+    rho0, g = scene.fluid.rest_density, abs(scene.forces.gravity[1])
+    sim = Simulation(scene, opts.precision, opts.backend)
+    t_end = 3.0
+    clock = _Clock(sim, opts, "hydrostatic_probes", t_end)
+    kept = []
+    while sim.t < t_end:
+        sim.step(dt_cap=t_end - sim.t)
+        clock.tick()
+        kept += [values for step, t, values in sim.probes.take_samples() if t >= t_end - SETTLE_WINDOW]
+    clock.done()
+    mean = np.mean(kept, axis=0)
+    names = sim.probes.names
+    at = {n: p.at for n, p in zip(names, scene.probes)}
+    scale = rho0 * g * fill
+    errors = {n: (v - rho0 * g * (fill - at[n][1])) / scale for n, v in zip(names, mean) if n.startswith("p_")}
+    heights = {n: (v - fill) / dx for n, v in zip(names, mean) if n.startswith("h_")}
+    centre = max(abs(errors[n]) for n in errors if n.startswith("p_centre"))
+    wall = max(abs(errors[n]) for n in errors if n.startswith("p_wall"))
+    height = max(abs(h) for h in heights.values())
+    shown = ", ".join(f"{n} {100 * e:+.2f} %" for n, e in errors.items())
+    log.info("hydrostatic_probes: pressure error of rho0 g H0 (mean of %d samples): %s", len(kept), shown)
+    log.info("hydrostatic_probes: height - H0 in spacings: %s", ", ".join(f"{n} {h:+.3f}" for n, h in heights.items()))
+    metrics = [Metric("hydrostatic_probes.centre_p_of_rho_g_H", centre, 0.01,
+                      f"max |p - rho0 g (H0 - y)| of {len(PROBE_DEPTHS)} probes at x = {0.5 * width:g} m"),
+               Metric("hydrostatic_probes.wall_p_of_rho_g_H", wall, 0.01,
+                      f"the same on the side wall x = 0"),
+               Metric("hydrostatic_probes.height_of_dx", height, 0.25,
+                      f"max |h - H0| / dx of {len(PROBE_HEIGHT_X)} height probes, H0 = {fill:g} m")]
+    if not opts.plot:
+        return metrics
+    plt = _plot()
+    fig, ax = plt.subplots(figsize=(5, 4))
+    y = np.linspace(0.0, fill, 10)
+    ax.plot(rho0 * g * (fill - y) / scale, y, "k-", label="rho0 g (H0 - y)")
+    for prefix, marker in (("p_centre", "o"), ("p_wall", "s")):
+        ys = [at[n][1] for n in names if n.startswith(prefix)]
+        ps = [v / scale for n, v in zip(names, mean) if n.startswith(prefix)]
+        ax.plot(ps, ys, marker, mfc="none", label=f"probes {prefix[2:]}")
+    for n, v in zip(names, mean):
+        if n.startswith("h_"):
+            ax.axhline(v, color="tab:blue", lw=0.5)
+    ax.set_xlabel("p / (rho0 g H0)")
+    ax.set_ylabel("y (m); thin lines: the height probes")
+    ax.legend()
+    fig.suptitle(f"Hydrostatic tank probes, 2D, {sim.n_particles:,} particles")
+    fig.tight_layout()
+    fig.savefig(out / "hydrostatic_probes.png", dpi=100)
+    plt.close(fig)
+    return metrics
+
+
 CASES = {"hydrostatic": hydrostatic, "hydrostatic_3d": hydrostatic_3d, "dam_break": dam_break, "dam_break_3d": dam_break_3d,
          "taylor_green": taylor_green, "oscillating_drop": oscillating_drop, "poiseuille": poiseuille,
-         "couette": couette, "floating_box": floating_box}
+         "couette": couette, "floating_box": floating_box, "hydrostatic_probes": hydrostatic_probes}
 
 
 def run_validate(names: list[str], quick: bool, out: Path, backend: str = "cpu", overrides: tuple = ()) -> int:

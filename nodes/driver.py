@@ -39,6 +39,7 @@ from nodes.viewer import frame_arrays
 from sphcore import __version__, checkpoint
 from sphcore.halo import PeerHalo
 from sphcore.output import write_final, write_scene, write_summary
+from sphcore.probes import ProbeWriter
 from sphcore.scene import Scene
 from sphcore.solver import Simulation, SimulationError
 from sphcore.state import merge_by_id
@@ -294,6 +295,9 @@ def drive(peer: PeerRun, plan: RunPlan, frames: FrameSink | None = None):
         prepare_output(plan.out)
         write_summary(plan.out / "summary.json", progress_summary(sim, scene, world, peer.t_start, "running"))
     last_summary = [time.perf_counter()]
+    probes = None  # rank 0 writes OUT/probes.csv (a resumed run keeps the rows up to its step)
+    if plan.out is not None and rank == 0 and sim.probes.items:
+        probes = ProbeWriter(plan.out / "probes.csv", sim.probes, sim.step_index)
     vtk = None
     if scene.output.vtk_every:
         from sphcore.vtk import VtkWriter  # VTK is loaded only by runs that write it
@@ -336,6 +340,8 @@ def drive(peer: PeerRun, plan: RunPlan, frames: FrameSink | None = None):
             yield from saved.save()
         if plan.report is not None:
             plan.report(sim.step_index)
+        if probes is not None:
+            probes.after_step()
         if vtk is not None and vtk.due(sim):
             vtk.write(sim, block_box())
         if frames is not None:
@@ -355,6 +361,8 @@ def drive(peer: PeerRun, plan: RunPlan, frames: FrameSink | None = None):
         raise
     finally:
         events.close()
+        if probes is not None:
+            probes.close()
         if frames is not None:
             frames.close()
     controls.finish()
@@ -374,6 +382,8 @@ def drive(peer: PeerRun, plan: RunPlan, frames: FrameSink | None = None):
         summary["checkpoints"] = saved.record
     if plan.restarts is not None:
         summary["restarts"] = plan.restarts
+    if sim.probes.items:
+        summary["probes"] = sim.probes.summary()
     summary["status"] = "complete"
     if "interrupted" in loop:  # stopped by a signal at the end of a step: the state is that step's
         summary["status"] = "interrupted"

@@ -13,6 +13,7 @@ A frame's statistics also name the camera and the colouring in use, so that the 
 """
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -90,6 +91,11 @@ class FrameMaker:
                  "bytes_by_exchange": {k: int(v) for k, v in (self.exchange_bytes or {}).items()},
                  "color_by": self.renderer.quantity, "range": [float(v) for v in self.renderer.range],
                  "bodies": body_displacements(sim)}
+        samples = sim.probes.take_samples()  # every peer has the same values: rank 0's frame carries them
+        if samples and self.rank == 0:
+            stats["probes"] = {"names": sim.probes.names,
+                               "samples": [[step, t, [float(v) if math.isfinite(v) else None for v in values]]
+                                           for step, t, values in samples]}
         self.controls = []
         return frame, stats, points
 

@@ -33,6 +33,7 @@ Rerun entities (timelines ``step`` and ``sim_time``):
     control                                 the control commands applied (sph control)
     events                                  camera and colour switches, dropped frames; each peer's
                                             rebalances, restarts and warnings ("peer r: ...")
+    probes/<name>                           the scene's [[probes]] (Pa or m), each sample at its own step
     stats/...                               per-peer particles (and imbalance), stage milliseconds, bytes
                                             sent (all, and per exchange: stats/exchange_mb/<exchange>);
                                             kinetic energy, max density deviation, frames/s,
@@ -177,6 +178,10 @@ def blueprint(scene, world: int, camera=None):
         rrb.TimeSeriesView(name="MB per exchange (arrays)", origin="/stats/exchange_mb"),
         rrb.TimeSeriesView(name="Kinetic energy", origin="/stats", contents=["/stats/kinetic_energy"]),
         rrb.TimeSeriesView(name="Max density error", origin="/stats", contents=["/stats/max_density_deviation"]),
+        *[rrb.TimeSeriesView(name=f"Probes: {title}", origin="/probes",
+                             contents=[f"/probes/{p.name}" for p in scene.probes if p.kind == kind])
+          for kind, title in (("pressure", "pressure (Pa)"), ("height", "surface height (m)"))
+          if any(p.kind == kind for p in scene.probes)],
         rrb.TimeSeriesView(name="Viewer: latency ms, frames/s, dropped", origin="/stats",
                            contents=["/stats/composite_latency_ms", "/stats/fps", "/stats/dropped_frames"]),
         name="Statistics")
@@ -496,6 +501,16 @@ class Viewer:
         rec.log("stats/kinetic_energy", rr.Scalars(sum(s["kinetic_energy"] for s in stats.values())))
         rec.log("stats/max_density_deviation", rr.Scalars(max(s["max_density_deviation"] for s in stats.values())))
         rec.log("stats/dropped_frames", rr.Scalars(self.dropped))
+        probes = stats[ranks[0]].get("probes") if ranks[0] == 0 else None
+        if probes:  # each sample at its own step ([[probes]], sphcore/probes.py); a dry height line is a gap
+            for sample_step, t, values in probe_samples(probes):
+                rec.set_time("step", sequence=sample_step)
+                rec.set_time("sim_time", duration=t)
+                for name, value in zip(probes["names"], values):
+                    if value is not None:
+                        rec.log(f"probes/{name}", rr.Scalars(value))
+            rec.set_time("step", sequence=step)
+            rec.set_time("sim_time", duration=sim_time)
         now = time.time()
         latency = 1e3 * (now - max(s["wall_time"] for s in stats.values()))
         self.latency_ms.append(latency)
@@ -537,6 +552,25 @@ def exchange_bytes(sent) -> list[tuple[str, float]]:
     return [(k, float(v)) for k, v in list(sent.items())[:16]
             if isinstance(k, str) and _NAME.fullmatch(k) and isinstance(v, (int, float))
             and not isinstance(v, bool) and math.isfinite(v) and v >= 0]
+
+
+def probe_samples(probes) -> list:
+    """[(step, t, values)] of a frame's "probes" statistics that are well formed (a peer's frame is
+    data from the network: names that are not probe names, and malformed samples, are skipped)."""
+    from sphcore.scene import PROBE_NAME
+    names = probes.get("names") if isinstance(probes, dict) else None
+    samples = probes.get("samples") if isinstance(probes, dict) else None
+    if (not isinstance(names, list) or not isinstance(samples, list)
+            or not all(isinstance(n, str) and PROBE_NAME.fullmatch(n) for n in names)):
+        return []
+    out = []
+    for sample in samples:
+        if (isinstance(sample, list) and len(sample) == 3 and isinstance(sample[0], int)
+                and isinstance(sample[1], (int, float)) and isinstance(sample[2], list)
+                and len(sample[2]) == len(names)
+                and all(v is None or (isinstance(v, (int, float)) and math.isfinite(v)) for v in sample[2])):
+            out.append((sample[0], float(sample[1]), sample[2]))
+    return out
 
 
 def frame_arrays(frame: Framelet, stats: dict, points=None) -> dict:

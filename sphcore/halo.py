@@ -102,8 +102,8 @@ class NullHalo:
         return value
         yield
 
-    def reduce_sums(self, sim, phase, values):
-        return [int(v) for v in values]
+    def reduce_sums(self, sim, phase, values, step=None):
+        return np.asarray(values, dtype=np.int64)
         yield
 
 
@@ -336,19 +336,20 @@ class PeerHalo:
             total += int(msg["sum"][0])
         return total
 
-    def reduce_sums(self, sim, phase, values):
-        """Global sums of a few integers in one message (reduce_sum's contract, element by element):
-        a floating body's force (physics/bodies.py)."""
-        step = sim.step_index
-        mine = np.array([int(v) for v in values], dtype=np.int64)
+    def reduce_sums(self, sim, phase, values, step=None):
+        """Global sums of an int64 vector (exact and order independent, like ``reduce_sum``): the
+        probes' partial sums (sphcore/probes.py). ``step`` tags the message (default: the step the
+        simulation is at); ``phase`` must be unique within that step."""
+        step = sim.step_index if step is None else step
+        mine = np.ascontiguousarray(values, dtype=np.int64)
         for q in self.others:
-            self._send(q, (step, phase), {"sum": mine}, "reduce")
-        total = [int(v) for v in mine]
-        expected = {"sum": ((len(mine),), np.int64)}
+            self._send(q, (step, phase), {"sums": mine}, "reduce")
+        total = mine.copy()
+        expected = {"sums": (mine.shape, np.int64)}
         for q in self.others:
             msg = yield from self.transport.recv(
                 q, (step, phase), lambda m, q=q: expect_arrays(m, expected, f"{phase} from peer {q}"))
-            total = [a + int(b) for a, b in zip(total, msg["sum"])]
+            total += msg["sums"]
         return total
 
     def reduce_max(self, sim, stats):

@@ -61,6 +61,23 @@ def _outside_domain(walls: Walls, scene: Scene, pts: np.ndarray, dx: float) -> n
     return outside
 
 
+outside_domain = _outside_domain  # the probes' name for it (sphcore/probes.py)
+
+
+def check_probes_inside(scene: Scene, walls: Walls):
+    """SceneError naming the [[probes]] whose point lies outside the domain (a point on a wall is
+    inside)."""
+    if not scene.probes:
+        return
+    pts = np.array([p.at for p in scene.probes], dtype=np.float64)
+    for i in np.nonzero(_outside_domain(walls, scene, pts, scene.particles.spacing))[0]:
+        p = scene.probes[i]
+        lo = [round(float(v), 6) for v in walls.lo[: scene.dim]]
+        hi = [round(float(v), 6) for v in walls.hi[: scene.dim]]
+        raise SceneError(f"probes[{i}].at = {list(p.at[: scene.dim])!r}: outside the domain (probe {p.name!r}); "
+                         f"its walls bound it within {lo} .. {hi}")
+
+
 def fill_blocks(scene: Scene, walls: Walls) -> list[tuple[np.ndarray, np.ndarray]]:
     """The (x, v) of each fluid block, in file order: its lattice points inside the domain, not
     within half a spacing of a wall or inside an obstacle, not filled already by an earlier block.
@@ -148,6 +165,7 @@ def scene_report(scene: Scene) -> dict:
     H = scene.sph.support * dx
     walls = build_walls(scene, KERNELS[scene.sph.kernel], H, np.float64)
     filled = fill_blocks(scene, walls)
+    check_probes_inside(scene, walls)
     counts = [len(x) for x, _ in filled]
     n = sum(counts)
     est = resource_estimate(scene)

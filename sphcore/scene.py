@@ -12,6 +12,7 @@ import difflib
 import json
 import math
 import os
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -57,6 +58,7 @@ PEERS = "fixes the peers' blocks when the peers start (balancing moves the cuts 
 VIEWER = ("is read by the viewer when it starts; switch the view with the commands camera NAME and "
           "color_by QUANTITY")
 OUTPUT = "fixes what the VTK series holds when the run starts"
+PROBES = "fixes the columns of probes.csv when the run starts"
 
 
 @dataclass(frozen=True)
@@ -327,20 +329,40 @@ class Output:
                              "(0 = none; --vtk K)", range=(0, 10**9), control=LIVE)
     surface: bool = spec(False, "with vtk_every: also extract the fluid surface (marching cubes) per frame")
     surface_resolution: float = spec(0.5, "surface sampling grid step, in particle spacings", range=(0.1, 4.0))
+    probes_every: int = spec(10, "steps between samples of the [[probes]] into probes.csv (0 = none; 1 to catch "
+                                 "impact peaks)", range=(0, 10**9), control=LIVE)
+
+
+PROBE_KINDS = ("pressure", "height")
+PROBE_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_.-]{0,63}")  # a CSV column and a Rerun entity path part as it is
+
+
+@dataclass(frozen=True)
+class Probe:
+    name: str = spec("", "probes.csv column and Rerun entity probes/<name>: a letter, then letters, digits, _ . - "
+                         "(at most 64; unique)")
+    kind: str = spec("pressure", "pressure: p (Pa) interpolated at the point at (Shepard); height: the free surface "
+                                 "(m, along the vertical, against gravity) on the vertical line through at",
+                     choices=PROBE_KINDS)
+    at: tuple = spec((0.0, 0.0, 0.0), "pressure: the point; height: a point of the vertical line (m, inside the "
+                                      "domain; required)", length=VEC)
+    threshold: float = spec(0.0, "fluid fraction sum_j (m_j/rho_j) W: pressure: dry (reads 0 Pa) below it; height: "
+                                 "the surface is where it falls below it (0 = the kind's default: 0.05 for pressure, "
+                                 "0.5 for height)", range=(0.0, 1.0), min_exclusive=False)
 
 
 SECTIONS: dict[str, type] = {
     "scene": SceneInfo, "particles": Particles, "fluid": Fluid, "sph": SPH, "terms": Terms, "forces": Forces,
     "time": Time, "domain": Domain, "obstacles": Obstacle, "boundary": Boundary, "run": Run,
-    "decomposition": DecompositionSection, "render": Render, "output": Output,
+    "decomposition": DecompositionSection, "render": Render, "output": Output, "probes": Probe,
 }
 LIST_ITEMS: dict[str, type] = {"fluid.blocks": Block, "domain.planes": Plane, "obstacles": Obstacle,
-                               "render.cameras": RenderCamera}
+                               "render.cameras": RenderCamera, "probes": Probe}
 # why the keys of a section (or of an array of tables) declared without ``control`` cannot change
 # during a run
 SECTION_CONTROL = {"scene": AT_START, "domain": WORLD, "obstacles": WORLD, "decomposition": PEERS,
                    "render": VIEWER, "output": OUTPUT, "fluid.blocks": PARTICLES, "domain.planes": WORLD,
-                   "render.cameras": VIEWER}
+                   "render.cameras": VIEWER, "probes": PROBES}
 
 
 @dataclass(frozen=True)
@@ -359,6 +381,7 @@ class Scene:
     decomposition: DecompositionSection = DecompositionSection()
     render: Render = Render()
     output: Output = Output()
+    probes: tuple = ()
     source: str = ""
 
     @property
@@ -647,6 +670,8 @@ def scene_from_dict(data: dict, source: str = "") -> Scene:
             if not isinstance(raw, list):
                 raise SceneError(f"obstacles = {raw!r}: expected an array of tables ([[obstacles]])")
             parts[name] = tuple(_build(Obstacle, o, f"obstacles[{i}]") for i, o in enumerate(raw))
+        elif name == "probes":
+            parts[name] = _build_probes(data.get("probes", []))
         else:
             parts[name] = _build(cls, data.get(name, {}), name)
     scene = Scene(**parts, source=source)
@@ -821,6 +846,7 @@ def _check_combinations(s: Scene, files: bool = True) -> Scene:
             raise SceneError("fluid.initial_flow = 'taylor_green': needs dim = 2 and domain.periodic = [true, true]")
     if s.time.mode == "fixed" and s.time.integrator == "leapfrog" and s.time.dt <= 0:
         raise SceneError(f"time.dt = {s.time.dt!r}: must be positive")
+    _check_probes(s)
     if files:
         _check_resources(s)
     return s
@@ -858,6 +884,46 @@ def _check_floating(s, key: str, ob):
     if not any(ob.free[: s.dim]):
         raise SceneError(f"{key}.free = {list(ob.free[:s.dim])!r}: a floating body needs at least one free axis "
                          "(or density = 0 for a fixed obstacle)")
+
+
+def _build_probes(raw) -> tuple:
+    """The [[probes]] tables: each built like any table, and ``at`` required (a probe at a default
+    point would measure somewhere nobody asked for)."""
+    if not isinstance(raw, list):
+        raise SceneError(f"probes = {_short(raw)}: expected an array of tables ([[probes]])")
+    probes = []
+    for i, item in enumerate(raw):
+        probe = _build(Probe, item, f"probes[{i}]")
+        for name in ("name", "at"):
+            if name not in item:
+                raise SceneError(f"probes[{i}]: no {name} given (each [[probes]] needs name and at, e.g. "
+                                 "name = \"p1\", at = [0.5, 0.1])")
+        probes.append(probe)
+    return tuple(probes)
+
+
+def _check_probes(s: Scene):
+    """Probe names (a CSV column, a Rerun entity path), unique; a height probe needs gravity to know
+    which way is up. Whether each point lies inside the domain needs the walls: sphcore/probes.py
+    ``check_inside``, before the first step."""
+    seen = {}
+    for i, probe in enumerate(s.probes):
+        key = f"probes[{i}]"
+        if not PROBE_NAME.fullmatch(probe.name):
+            raise SceneError(f"{key}.name = {_short(probe.name)}: allowed are a letter, then letters, digits, _ . or - "
+                             "(at most 64 characters: it is a column of probes.csv and the Rerun entity probes/<name>)")
+        if probe.name in ("step", "t"):
+            raise SceneError(f"{key}.name = {probe.name!r}: 'step' and 't' are probes.csv's first columns; choose "
+                             "another name")
+        if probe.name in seen:
+            raise SceneError(f"{key}.name = {probe.name!r}: already the name of probes[{seen[probe.name]}]; probe "
+                             "names must be unique")
+        seen[probe.name] = i
+        if s.dim == 2 and probe.at[2] != 0.0:
+            raise SceneError(f"{key}.at = {list(probe.at)!r}: z must be 0 in 2D (the particles lie in z = 0)")
+        if probe.kind == "height" and not any(s.forces.gravity):
+            raise SceneError(f"{key}.kind = 'height': needs forces.gravity (the vertical is the direction opposite "
+                             f"gravity), but forces.gravity = {list(s.forces.gravity[: s.dim])!r}")
 
 
 # Memory of one process, per particle and per grid cell, at float64 (f32 needs less): the state

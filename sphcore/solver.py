@@ -20,6 +20,7 @@ from sphcore.health import Health
 from sphcore.initial import generate_particles
 from sphcore.model import Model
 from sphcore.motion import FloatingBody
+from sphcore.probes import Probes
 from sphcore.scene import Scene
 from sphcore.solvers import SOLVERS
 from sphcore.state import ParticleState
@@ -120,6 +121,7 @@ class Simulation:
         else:
             self.engine = cpu.CpuStages(self)
         self.health = Health(self)  # unconverged solves, the energy watchdog (health.py)
+        self.probes = Probes(self)  # the scene's [[probes]] (probes.py)
 
     @property
     def prm(self):
@@ -305,6 +307,7 @@ class Simulation:
         self.dt = dt
         self.t += dt
         self.step_index += 1
+        yield from self.probes.after_step(halo)                   # every K steps: the probes (x, m, rho, p)
         yield from self.health.after_step(halo)                   # every K steps: the energy watchdog
 
     def _body_forces(self, halo, prm):

@@ -136,6 +136,7 @@ CASES = {
     "output.checkpoint_every": ((), "output.checkpoint_every=50", False),
     "output.checkpoint_keep": ((), "output.checkpoint_keep=3", False),
     "output.vtk_every": ((), "output.vtk_every=50", False),
+    "output.probes_every": ((), "output.probes_every=4", False),
 }
 
 

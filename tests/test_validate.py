@@ -51,7 +51,7 @@ def test_the_release_fit_recovers_a_known_delay_and_never_runs_the_experiment_ea
 
 def test_unknown_cases_are_refused(capsys):
     assert main(["validate", "sloshing"]) == 2
-    assert "choose from hydrostatic, hydrostatic_3d, dam_break, dam_break_3d, taylor_green, oscillating_drop, poiseuille, couette, floating_box" in capsys.readouterr().err
+    assert "choose from hydrostatic, hydrostatic_3d, dam_break, dam_break_3d, taylor_green, oscillating_drop, poiseuille, couette, floating_box, hydrostatic_probes" in capsys.readouterr().err
 
 
 def test_drop_reference_reproduces_the_published_period():
