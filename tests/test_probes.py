@@ -288,3 +288,19 @@ def test_malformed_probe_statistics_from_the_wire_are_skipped(tmp_path):
     steps = entity_steps(tmp_path / "r.rrd")
     assert steps.get("/probes/a") == [1] and "/probes/b" not in steps, steps
     assert not [e for e in steps if e.startswith("/probes/") and e not in ("/probes/a",)]
+
+
+def test_two_peer_processes_over_zenoh_write_the_same_probes_csv_as_one_process(tmp_path):
+    # Given the small dam break with probes sampled every step, as `sph run` and `sph run --peers 2`
+    import subprocess
+    import sys
+    probe_scene(tmp_path)
+    base = [sys.executable, "-m", "launch.cli", "run", str(tmp_path / "scene.toml"), "--set", SMALL[0], "--set",
+            "output.probes_every=1", "--precision", "f64", "--steps", "150", "--no-viewer", "--quiet"]
+    for out, extra in (("one", []), ("two", ["--peers", "2", "--insecure"])):
+        proc = subprocess.run(base + ["--out", str(tmp_path / out)] + extra, cwd=ROOT, capture_output=True, text=True,
+                              timeout=300)
+        assert proc.returncode == 0, proc.stderr
+    # Then both files hold the same 150 rows, to the last bit
+    one, two = ((tmp_path / d / "probes.csv").read_text() for d in ("one", "two"))
+    assert len(one.splitlines()) == 151 and one == two
