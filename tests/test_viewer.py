@@ -249,6 +249,47 @@ def test_the_viewer_follows_a_camera_switch_and_a_changed_setting(tmp_path):
     assert "step 2: camera side" in text_logs(tmp_path / "r.rrd", "/events")
 
 
+def test_the_shipped_dam_break_has_named_cameras_that_frame_the_fluid_and_the_viewer_follows_one(tmp_path):
+    from nodes.frames import domain_box
+    from sphcore.render import BACKGROUND, SceneRenderer
+    from sphcore.solver import Simulation
+    # Given the 3D dam break as shipped (coarse) and its particles at t = 0
+    sc = scene("dam_break", "particles.spacing=0.04")
+    assert [c.name for c in sc.render.cameras] == ["side", "downstream"]
+    box = domain_box(sc)
+    sim = Simulation(sc, "f64")
+    s = sim.state
+    n = s.n_owned
+    # When each camera renders them
+    pictures = {}
+    for name in ("default", "side", "downstream"):
+        r = SceneRenderer(sc, *box)
+        r.camera_name = name
+        frame = r.framelet(0, s.x[:n], s.v[:n], s.rho[:n], s.p[:n], s.id[:n])
+        pictures[name] = (frame, r.image([frame])[0])
+    # Then every view shows the column (a fair share of its pixels) and no two views are alike
+    for name, (_, rgb) in pictures.items():
+        fluid = np.any(rgb != np.asarray(BACKGROUND, np.uint8), axis=-1).mean()
+        assert fluid > 0.02, (name, fluid)
+    names = list(pictures)
+    for i in range(3):
+        for j in range(i + 1, 3):
+            assert np.abs(pictures[names[i]][1].astype(int) - pictures[names[j]][1].astype(int)).mean() > 2.0
+    # ... and a viewer told by the peers to switch to "side" logs the side view, outline included
+    rec = open_recording("test", tmp_path / "r.rrd")
+    v = Viewer(sc, box, rec, world=1, particles=n)
+    stats = {"sim_time": 0.0, "particles": n, "bytes_sent": 0, "stage_ms": {}, "kinetic_energy": 0.0,
+             "max_density_deviation": 0.0, "wall_time": time.time(), "camera": "default", "color_by": "speed",
+             "range": [0.0, 3.0]}
+    v.add(1, 0, pictures["default"][0], stats)
+    v.add(2, 0, pictures["side"][0], dict(stats, camera="side", controls=["camera side"]))
+    v.close()
+    del rec
+    got = images(tmp_path / "r.rrd")
+    assert np.abs(got[1].astype(int) - pictures["default"][1]).mean() < 2.0  # JPEG's error only
+    assert np.abs(got[2].astype(int) - pictures["side"][1]).mean() < 2.0
+
+
 def test_obstacles_are_drawn_into_the_composite_by_depth():
     from nodes.frames import domain_box
     # Given the obstacle scene (a sphere in a tilted tank) and a framelet filling the screen
