@@ -865,6 +865,11 @@ def _check_motion(s, key: str, item):
                          "(Hz)")
     if item.frequency > 0.0 and not any(item.amplitude):
         raise SceneError(f"{key}.frequency = {item.frequency!r}: an oscillation needs a non-zero {key}.amplitude (m)")
+    speed = math.hypot(*item.velocity) + math.hypot(*item.amplitude) * 2.0 * math.pi * item.frequency
+    if speed >= s.sph.sound_speed:
+        raise SceneError(f"{key}.velocity / amplitude / frequency: the wall moves at up to {speed:.3g} m/s, not below "
+                         f"sph.sound_speed = {s.sph.sound_speed:g} m/s; a weakly compressible fluid needs walls "
+                         "slower than sound (10 x slower for 1 % density error)")
     if (any(item.velocity) or any(item.amplitude)) and s.sph.solver != "wcsph":
         raise SceneError(f"{key}.velocity / amplitude: moving walls need sph.solver = 'wcsph' (DFSPH's solves do not "
                          "see the walls move)")
@@ -881,6 +886,10 @@ def _check_floating(s, key: str, ob):
                          f"{key}.velocity or {key}.amplitude")
     if s.sph.solver != "wcsph":
         raise SceneError(f"{key}.density = {ob.density!r}: floating bodies need sph.solver = 'wcsph'")
+    if ob.density < 0.1 * s.fluid.rest_density:
+        raise SceneError(f"{key}.density = {ob.density!r}: below 0.1 x fluid.rest_density = "
+                         f"{0.1 * s.fluid.rest_density:g} kg/m^3; the fluid moves a body this light through an explicit "
+                         "coupling that is unstable when the body is much lighter than the fluid it displaces")
     if not any(ob.free[: s.dim]):
         raise SceneError(f"{key}.free = {list(ob.free[:s.dim])!r}: a floating body needs at least one free axis "
                          "(or density = 0 for a fixed obstacle)")

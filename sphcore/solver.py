@@ -301,6 +301,7 @@ class Simulation:
             for body, force in zip(self.model.walls.bodies, body_forces):  # floating bodies: F, b -> a, u, X
                 body.advance(force, (prm.gravity_x + prm.external_x, prm.gravity_y + prm.external_y,
                                      prm.gravity_z + prm.external_z), dt)
+                self._check_body(body)
             self._move_walls(self.t + dt)                          # the collision guard: walls at t + dt
             self.leaks += int(e.run(st.BOUNDARIES, prm=prm))
         self.dt_prev = dt
@@ -322,6 +323,19 @@ class Simulation:
             units = yield from halo.reduce_sums(self, f"body{k}", units)
             forces.append(np.array(units, dtype=np.float64) * quantum)
         return forces
+
+    def _check_body(self, body):
+        """A floating body whose reference point leaves the domain's box (body-wall contact is not
+        modelled: a body heavier than the fluid sinks through the floor) stops the run."""
+        w = self.model.walls
+        where = w.rest[body.wall, 0:3] + body.x
+        d = self.scene.dim
+        if not (np.all(np.isfinite(where)) and np.all(where[:d] >= w.lo[:d]) and np.all(where[:d] <= w.hi[:d])):
+            index = body.wall - w.container_walls - len(self.scene.domain.planes)
+            self._fail(f"floating body obstacles[{index}] left the domain (its centre at "
+                       f"{np.array2string(where[:d], precision=4)} m, moving at "
+                       f"{np.array2string(body.v[:d], precision=3)} m/s): contact between a body and the walls is "
+                       "not modelled (a body denser than the fluid sinks through the floor)", rows="fastest")
 
     def _move_walls(self, t: float):
         """Moving walls (motion.py) to time t, on the backend too; nothing for static walls."""

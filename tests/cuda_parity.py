@@ -149,7 +149,7 @@ CASES = {
     # channel so that the wall's velocity and acceleration both enter (viscous drag, pressure, collision)
     "moving_walls_f64": lambda: steps_case(scene("couette_2d.toml", "particles.spacing=5e-5",
                                                  "domain.planes[1].amplitude=[0, 2e-5]",
-                                                 "domain.planes[1].frequency=20"), "f64", 3),
+                                                 "domain.planes[1].frequency=10"), "f64", 3),
     # a floating body: its force, the reaction to its wall's terms, reduced on the device
     "floating_f64": lambda: steps_case(scene("floating_box_2d.toml", "particles.spacing=0.04",
                                              "forces.ramp_time=0.001"), "f64", 5),

@@ -90,6 +90,9 @@ def test_a_live_change_keeps_the_body_where_it_is():
     ('shape = "box"\ndensity = 500.0\nvelocity = [1.0, 0.0]\n', "obstacles[0].density = 500.0: a floating body is moved"),
     ('shape = "box"\ndensity = 500.0\nfree = [false, false]\n', "obstacles[0].free = [False, False]: a floating body needs"),
     ('shape = "box"\ndensity = -1.0\n', "obstacles[0].density"),
+    ('shape = "box"\ndensity = 1e-300\n', "obstacles[0].density = 1e-300: below 0.1 x fluid.rest_density"),
+    ('shape = "box"\nvelocity = [1e300, 0.0]\n', "the wall moves at up to 1e+300 m/s, not below sph.sound_speed"),
+    ('shape = "box"\namplitude = [0.01, 0.0]\nfrequency = 1e300\n', "the wall moves at up to 6.28e+298 m/s"),
 ])
 def test_a_bad_floating_body_is_refused_with_the_key_and_the_value(tmp_path, lines, message):
     text = (CONFIGS / "dam_break_2d.toml").read_text() + '\n[[obstacles]]\ncenter = [0.7, 0.1]\n' + lines
@@ -120,3 +123,16 @@ def test_the_viewer_takes_only_well_formed_body_positions_off_the_wire():
     sdf = obstacle_distance(scene)
     bottom = np.array([[0.5, 0.38 - 0.02 - 0.01, 0.0]])  # 1 cm below the displaced bottom face
     assert sdf(bottom, 0.0, shifts)[0] == pytest.approx(0.01, abs=1e-12)
+
+
+def test_a_body_denser_than_the_fluid_that_sinks_through_the_floor_stops_the_run(tmp_path):
+    from sphcore.solver import SimulationError
+    text = (CONFIGS / "dam_break_2d.toml").read_text() + (
+        '\n[[obstacles]]\nshape = "sphere"\ncenter = [0.1, 0.2]\nradius = 0.05\ndensity = 1e6\n')
+    path = tmp_path / "sinking.toml"
+    path.write_text(text)
+    sim = Simulation(load_scene(path, ["particles.spacing=0.02", "forces.ramp_time=0"]), "f64")
+    with pytest.raises(SimulationError) as e:
+        for _ in range(5000):
+            sim.step()
+    assert "floating body obstacles[0] left the domain" in str(e.value) and "not modelled" in str(e.value)
