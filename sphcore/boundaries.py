@@ -52,10 +52,10 @@ class Walls:
         """The floating bodies (motion.FloatingBody), in wall order."""
         return [m for _, m in self.moves if isinstance(m, FloatingBody)]
 
-    def at(self, t: float, force: bool = False) -> bool:
+    def at(self, t: float) -> bool:
         """Move the walls to time ``t`` (sphcore/motion.py; floating bodies: to their current state):
-        their rows and velocities; False if no wall moves (nothing changed)."""
-        if not self.moves or (self.t == t and not force):
+        their rows and velocities; False if no wall moves or they are there already."""
+        if not self.moves or self.t == t:
             return False
         self.t = t
         for q, motion in self.moves:

@@ -63,8 +63,8 @@ class Motion:
         return self.amplitude * (-self.omega ** 2 * math.sin(self.omega * t + self.phase))
 
     def largest_speed(self) -> float:
-        """An upper bound of |u_w(t)| (m/s), for the time step's speed estimate."""
-        return float(np.linalg.norm(self.velocity) + np.linalg.norm(self.amplitude) * self.omega)
+        """An upper bound of |u_w(t)| (m/s): the scene refuses walls as fast as sound."""
+        return math.hypot(*self.velocity) + math.hypot(*self.amplitude) * self.omega  # hypot: no overflow
 
 
 @dataclass

@@ -865,7 +865,9 @@ def _check_motion(s, key: str, item):
                          "(Hz)")
     if item.frequency > 0.0 and not any(item.amplitude):
         raise SceneError(f"{key}.frequency = {item.frequency!r}: an oscillation needs a non-zero {key}.amplitude (m)")
-    speed = math.hypot(*item.velocity) + math.hypot(*item.amplitude) * 2.0 * math.pi * item.frequency
+    from sphcore.motion import Motion
+    motion = Motion.of(item)
+    speed = motion.largest_speed() if motion is not None else 0.0
     if speed >= s.sph.sound_speed:
         raise SceneError(f"{key}.velocity / amplitude / frequency: the wall moves at up to {speed:.3g} m/s, not below "
                          f"sph.sound_speed = {s.sph.sound_speed:g} m/s; a weakly compressible fluid needs walls "
