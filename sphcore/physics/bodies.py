@@ -15,7 +15,7 @@ sums the boundary particles' forces into a floating body: Crespo et al. 2015, se
 """
 from numba import njit
 
-from sphcore.physics.external import body_acceleration, central_acceleration
+from sphcore.physics.external import body_acceleration_at
 from sphcore.physics.real import like
 from sphcore.physics.walls import wall_terms, wall_viscosity
 
@@ -34,12 +34,7 @@ def body_reaction_row(kernel, viscosity, prm, i, x, v, m, rho, p, wall_kind, wal
                       fill, wall, quantum):
     """Row i's share of the fluid's force on the body of wall row ``wall``: (Fx, Fy, Fz) in units of
     ``quantum`` N.   (module docstring)"""
-    bx, by, bz = body_acceleration(prm)
-    if prm.central_omega2 > 0.0:
-        cx, cy, cz = central_acceleration(prm, x[i, 0], x[i, 1], x[i, 2])
-        bx += cx
-        by += cy
-        bz += cz
+    bx, by, bz = body_acceleration_at(prm, x[i, 0], x[i, 1], x[i, 2])
     q0 = wall
     q1 = wall + 1
     _, ax, ay, az = wall_terms(kernel, prm, True, wall_kind[q0:q1], wall_data[q0:q1], wall_tables,

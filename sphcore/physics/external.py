@@ -31,6 +31,18 @@ def body_acceleration(prm):
 
 
 @njit(cache=True, inline="always")
+def body_acceleration_at(prm, x, y, z):
+    """The body forces at (x, y, z): gravity + external, plus the central force where there is one."""
+    bx, by, bz = body_acceleration(prm)
+    if prm.central_omega2 > 0.0:
+        cx, cy, cz = central_acceleration(prm, x, y, z)
+        bx += cx
+        by += cy
+        bz += cz
+    return bx, by, bz
+
+
+@njit(cache=True, inline="always")
 def central_acceleration(prm, x, y, z):
     """-omega^2 (x - c) at (x, y, z) in m/s^2."""
     return (-prm.central_omega2 * (x - prm.central_x), -prm.central_omega2 * (y - prm.central_y),

@@ -8,7 +8,7 @@ import math
 
 from numba import njit
 
-from sphcore.physics.external import body_acceleration, central_acceleration
+from sphcore.physics.external import body_acceleration_at
 from sphcore.physics.kernels import dw_dr_over_r, lap_w_viscosity
 from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
 from sphcore.physics.pressure import pressure_pair
@@ -22,12 +22,7 @@ def acceleration_row(kernel, viscosity, periodic, neighbours, prm, i, x, v, m, r
                      cell_end, wall_kind, wall_data, wall_tables, wall_motion, fill, a):
     """a_i = pressure + viscosity + body force + wall pressure.   (pressure.py, viscosity.py,
     external.py, walls.py; moving walls: motion.py)"""
-    bx, by, bz = body_acceleration(prm)
-    if prm.central_omega2 > 0.0:
-        cx, cy, cz = central_acceleration(prm, x[i, 0], x[i, 1], x[i, 2])
-        bx += cx
-        by += cy
-        bz += cz
+    bx, by, bz = body_acceleration_at(prm, x[i, 0], x[i, 1], x[i, 2])
     ax = bx
     ay = by
     az = bz
