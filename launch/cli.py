@@ -19,6 +19,8 @@ import logging
 import sys
 from pathlib import Path
 
+from nodes.rerun_sinks import LIVE_FPS
+
 EXIT_BAD_INPUT = 2
 EXIT_SIMULATION = 3
 EXIT_PEER = 4
@@ -73,11 +75,25 @@ def _port(text: str) -> int:
     return value
 
 
-def _add_port_options(parser):
+def _add_port_options(parser, live: bool = True):
     parser.add_argument("--web-port", type=_port, default=None, metavar="PORT",
                         help="--serve-web: the web page's port (default 9090, or a free one if it is taken)")
     parser.add_argument("--grpc-port", type=_port, default=None, metavar="PORT",
                         help="--serve-web / --spawn: the Rerun stream's port (default 9876, or a free one)")
+    if live:
+        parser.add_argument("--live-fps", type=_live_fps, default=LIVE_FPS, metavar="F",
+                            help=f"at most F frames per second to a live viewer, the newest (default {LIVE_FPS:g}; "
+                                 "0 = every frame while it keeps up); the recording gets every frame")
+
+
+def _live_fps(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (0.0 <= value <= 1000.0):
+        raise argparse.ArgumentTypeError(f"{text!r}: use 0 (no limit) up to 1000 frames per second")
+    return value
 
 
 class _OldSpelling(argparse.Action):
@@ -369,7 +385,7 @@ def build_parser() -> argparse.ArgumentParser:
                             description="Open FILE.rrd in the native Rerun viewer, or serve it to a browser.")
     replay.add_argument("file", type=Path, help="a recording, e.g. runs/dam_break/run.rrd")
     replay.add_argument("--serve-web", action="store_true", help="serve the web viewer on 127.0.0.1 instead")
-    _add_port_options(replay)
+    _add_port_options(replay, live=False)
     replay.add_argument("--port", type=_port, dest="web_port", metavar="PORT", help="the same as --web-port")
 
     scene = sub.add_parser(
@@ -765,7 +781,7 @@ def viewer_options(args, scene, out: Path) -> dict | None:
     if args.no_viewer or scene.render.every == 0:
         return None
     return {"record": args.record or out / "run.rrd", "spawn": args.spawn, "serve_web": args.serve_web,
-            "grpc_port": args.grpc_port, "web_port": args.web_port,
+            "grpc_port": args.grpc_port, "web_port": args.web_port, "live_fps": args.live_fps,
             "connect": args.rerun_url,
             "expected_frames": args.steps // scene.render.every if args.steps else None}  # the size estimate
 
@@ -791,7 +807,7 @@ def _cmd_viewer(args) -> int:
     security.check_endpoints(args.listen, args.zenoh, trust is not None)
     scene = load_scene(args.config, args.overrides)
     rec = open_recording(args.run_id, args.record, args.spawn, args.serve_web, args.rerun_url, args.grpc_port,
-                         args.web_port)
+                         args.web_port, args.live_fps)
     import signal
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # stopped by the launcher: flush the recording
     if args.watch_stdin:  # the launcher is gone: stop as if it had said so (SIGTERM: flush, then exit)

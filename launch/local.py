@@ -119,6 +119,8 @@ def viewer_command(config: Path, run_id: str, listen: str, n_peers: int, viewer:
             cmd += ["--" + option.replace("_", "-"), str(viewer[option])]
     if viewer["connect"]:
         cmd += ["--rerun-url", viewer["connect"]]
+    if viewer.get("live_fps") is not None:
+        cmd += ["--live-fps", repr(float(viewer["live_fps"]))]
     for o in args.overrides:
         cmd += ["--set", o]
     return cmd

@@ -18,6 +18,7 @@ import numba
 from nodes.driver import PeerRun, RunPlan, drive, listen_for_control, run_blocking
 from nodes.frames import FrameMaker, domain_box
 from nodes.transport import InProcessNetwork
+from nodes.rerun_sinks import LIVE_FPS
 from nodes.viewer import Viewer, open_recording
 from sphcore import checkpoint
 from sphcore.halo import NULL_HALO
@@ -37,7 +38,7 @@ class LocalFrames:
         box = domain_box(scene)
         rec = open_recording(f"{scene.scene.name}-{os.getpid()}", viewer["record"], viewer["spawn"],
                              viewer["serve_web"], viewer["connect"], viewer.get("grpc_port"),
-                             viewer.get("web_port"))
+                             viewer.get("web_port"), viewer.get("live_fps", LIVE_FPS))
         self.record = viewer["record"]
         self.view = Viewer(scene, box, rec, 1, sim.n_particles, expected_frames=viewer.get("expected_frames"),
                            record=self.record, announce=lambda text: print(text, flush=True))

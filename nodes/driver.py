@@ -125,9 +125,9 @@ class PublishFrames:
 
     def show(self, sim: Simulation):
         if self.maker.due(sim) and self.endpoint.viewer_listening():
-            frame, stats, points = self.maker.make(sim, sum(self.endpoint.bytes_sent.values()))
+            frame, stats, points, surface = self.maker.make(sim, sum(self.endpoint.bytes_sent.values()))
             with sim.timers("publish"):
-                self.endpoint.publish_frame(sim.step_index, "frame", frame_arrays(frame, stats, points))
+                self.endpoint.publish_frame(sim.step_index, "frame", frame_arrays(frame, stats, points, surface))
 
     def close(self):
         pass
@@ -331,6 +331,9 @@ def drive(peer: PeerRun, plan: RunPlan, frames: FrameSink | None = None):
         lo, hi = halo.dec.cell_box(rank)
         g = sim.grid
         return g.origin + lo * g.cell.astype(np.float64), g.origin + hi * g.cell.astype(np.float64)
+
+    if maker is not None:
+        maker.block_box = block_box  # the live surface's nodes: this peer's block, wherever rebalancing moved it
 
     def on_step(seconds):
         if recorder is not None:

@@ -112,3 +112,29 @@ def text_logs(path: Path, entity: str) -> list[str]:
                 if name.endswith(":text"):
                     out += [t[0] if isinstance(t, list) else t for t in batch.column(name).to_pylist()]
     return out
+
+
+def meshes(path: Path, entity: str = "/fluid/surface") -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """{step: (vertex positions (n, 3) float32, triangle indices (m, 3) int64)} of a Mesh3D entity
+    (a cleared step is left out)."""
+    from rerun.chunk import RrdReader
+    out = {}
+    for chunk in RrdReader(str(path)).stream():
+        if chunk.entity_path != entity:
+            continue
+        batch = chunk.to_record_batch()
+        if "Mesh3D:vertex_positions" not in batch.schema.names:
+            continue
+        for step, xyz, tri in zip(batch.column("step").to_pylist(), batch.column("Mesh3D:vertex_positions").to_pylist(),
+                                  batch.column("Mesh3D:triangle_indices").to_pylist()):
+            if xyz:
+                out[step] = (np.asarray(xyz, dtype=np.float32).reshape(-1, 3),
+                             np.asarray(tri, dtype=np.int64).reshape(-1, 3))
+    return out
+
+
+def enclosed_volume(vertices: np.ndarray, triangles: np.ndarray) -> float:
+    """The volume inside a closed triangle mesh (m^3), by the divergence theorem (the sum of the
+    signed tetrahedra from the origin to each triangle); its sign says which way the faces turn."""
+    a, b, c = (vertices[triangles[:, k]].astype(np.float64) for k in range(3))
+    return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)

@@ -11,8 +11,10 @@ The viewer never waits for Rerun either. Complete frames go into a short queue t
 thread composites, encodes and logs; when the queue is full (Rerun's channel to a slow live viewer
 blocks the writer, or compositing cannot keep up) the oldest waiting frame is dropped and counted
 (``stats/dropped_frames``, summary.json's viewer section), so what is shown stays close to the
-simulation instead of falling ever further behind. The control commands a dropped frame carried
-are logged with the next frame. Images are compressed: the composite's RGB as JPEG (quality
+simulation instead of falling ever further behind. The recording file and live viewers are separate
+streams (nodes/rerun_sinks.Streams): a live viewer that is slow or stopped reading loses frames
+(the newest is sent, at most ``--live-fps`` per second) but never holds up the file. The control
+commands a dropped frame carried are logged with the next frame. Images are compressed: the composite's RGB as JPEG (quality
 ``RGB_QUALITY``), each peer's framelet as JPEG (``PEER_QUALITY``), the depth as a 16-bit PNG
 (lossless, depth quantised to 1/60000 of the frame's farthest sample).
 
@@ -29,6 +31,8 @@ Rerun entities (timelines ``step`` and ``sim_time``):
     composite/status                        a text log line for every incomplete frame
     peers/<rank>/rgb                        each peer's framelet (JPEG)
     fluid/points                            the 3D point cloud (render.points_every; 0 = a point budget)
+    fluid/surface                           the live fluid surface (render.surface): a mesh (3D) or lines
+                                            (2D), every render.surface_every frames
     camera                                  the camera the frames are rendered with (pinhole + pose)
     control                                 the control commands applied (sph control)
     events                                  camera and colour switches, dropped frames; each peer's
@@ -37,7 +41,7 @@ Rerun entities (timelines ``step`` and ``sim_time``):
     stats/...                               per-peer particles (and imbalance), stage milliseconds, bytes
                                             sent (all, and per exchange: stats/exchange_mb/<exchange>);
                                             kinetic energy, max density deviation, frames/s,
-                                            composite latency, dropped frames
+                                            composite latency, dropped frames (recording; live)
     domain, container, obstacles/<i> (static)   the domain box and the walls as meshes
     info, legend                            the scene's physical parameters (updated after control set),
                                             the colouring and its range
@@ -59,7 +63,8 @@ from pathlib import Path
 import numpy as np
 
 from nodes import wire
-from nodes.rerun_sinks import sinks_for
+from nodes.frames import SURFACE_SCALE, surface_lattice
+from nodes.rerun_sinks import LIVE_FPS, Streams, sinks_for
 from nodes.walls_view import (body_shifts, floating_obstacles, merge_layer, moving_obstacles, obstacle_distance,
                                obstacle_layer, wall_meshes)
 from nodes.zenoh_transport import zenoh_config
@@ -76,18 +81,24 @@ UNITS = {"speed": "m/s", "density": "kg/m³", "pressure": "Pa", "rank": ""}
 
 
 def open_recording(run_id: str, record: Path | None = None, spawn: bool = False, serve_web: bool = False,
-                   connect: str | None = None, grpc_port: int | None = None, web_port: int | None = None):
-    """A Rerun recording stream that goes to every destination asked for at once (nodes/rerun_sinks.py:
-    the file, the native viewer, the web viewer on loopback, a URL); analytics stay off
+                   connect: str | None = None, grpc_port: int | None = None, web_port: int | None = None,
+                   live_fps: float = LIVE_FPS) -> Streams:
+    """The viewer's Rerun output to every destination asked for at once (nodes/rerun_sinks.py: the
+    file, the native viewer, the web viewer on loopback, a URL): one stream for the file and one for
+    the live sinks, so a live viewer never holds up the recording; analytics stay off
     (RERUN_ANALYTICS=0 is set by the launcher; ``rerun analytics disable`` makes it permanent)."""
     import rerun as rr
 
-    rec = rr.RecordingStream("sphfluid", recording_id=run_id)
-    sinks = sinks_for(record, spawn, serve_web, connect, grpc_port, web_port,
-                      announce=lambda text: print(text, flush=True))
-    if sinks:
-        rec.set_sinks(*sinks)
-    return rec
+    file_sink, live_sinks = sinks_for(record, spawn, serve_web, connect, grpc_port, web_port,
+                                      announce=lambda text: print(text, flush=True))
+    file = live = None
+    if file_sink is not None:
+        file = rr.RecordingStream("sphfluid", recording_id=run_id)
+        file.set_sinks(file_sink)
+    if live_sinks:
+        live = rr.RecordingStream("sphfluid", recording_id=run_id)
+        live.set_sinks(*live_sinks)
+    return Streams(file, live, live_fps)
 
 
 def info_text(scene, particles: int, world: int, changes=()) -> str:
@@ -183,7 +194,8 @@ def blueprint(scene, world: int, camera=None):
           for kind, title in (("pressure", "pressure (Pa)"), ("height", "surface height (m)"))
           if any(p.kind == kind for p in scene.probes)],
         rrb.TimeSeriesView(name="Viewer: latency ms, frames/s, dropped", origin="/stats",
-                           contents=["/stats/composite_latency_ms", "/stats/fps", "/stats/dropped_frames"]),
+                           contents=["/stats/composite_latency_ms", "/stats/fps", "/stats/dropped_frames",
+                                     "/stats/live_dropped_frames"]),
         name="Statistics")
     composite = rrb.Spatial2DView(name="Composite", origin="/composite",
                                   overrides={"/composite/depth": rrb.EntityBehavior(visible=False)})
@@ -225,14 +237,16 @@ def exit_now(code: int, message: str):
 
 
 class Viewer:
-    """Composites frames of ``world`` peers and logs them to ``rec`` (a Rerun RecordingStream).
-    ``announce``: where the recording size estimate goes (a line after the first frame)."""
+    """Composites frames of ``world`` peers and logs them to ``rec`` (``Streams``, or one Rerun
+    RecordingStream logged in the writer thread). ``announce``: where the recording size estimate
+    goes (a line after the first frame)."""
 
     def __init__(self, scene, box, rec, world: int = 1, particles: int = 0, frame_timeout: float = 2.0,
                  queue_frames: int = QUEUE_FRAMES, expected_frames: int | None = None, announce=None,
                  record: Path | None = None):
         import rerun as rr
-        self.rr, self.rec, self.scene = rr, rec, scene
+        self.rr, self.rec, self.scene = rr, rec if isinstance(rec, Streams) else Streams(rec), scene
+        rec = self.rec
         self.world, self.particles = world, particles
         self.renderer = SceneRenderer(scene, *box, world)
         self.frame_timeout = frame_timeout
@@ -241,7 +255,7 @@ class Viewer:
         self.frames = 0          # frames logged
         self.incomplete = 0
         self.dropped = 0         # complete frames dropped because the writer was behind
-        self.stalled = False     # Rerun did not take the last frames at the end (a stalled live viewer)
+        self.stalled = False     # the live viewer did not take the last frames at the end (it stopped reading)
         self.latency_ms = []     # per logged frame: newest framelet's publication -> logged
         self.frame_bytes = []    # per logged frame: bytes of its encoded images and points
         self.changes = []        # (step, control text) of the settings changed
@@ -249,6 +263,10 @@ class Viewer:
         self._carried = []       # control lines of dropped frames, logged with the next frame
         self._layers = {}        # camera name -> the obstacles' (rgb, depth) seen from it (walls_view.py)
         self._obstacle_sdf = None  # the obstacles' distance function (walls_view.py); False: none to draw
+        self.lattice = surface_lattice(scene, box, particles)  # what a peer's surface piece must fit (frames.py)
+        self.surface_ms = []     # per live surface: assembling the pieces and extracting the mesh
+        self.surface_bytes = []  # per live surface: the mesh's bytes as logged
+        self.bad_surfaces = 0    # pieces off the lattice (a peer's frame is data from the network): dropped
         self._lock = threading.Lock()
         self._queue = queue.Queue(maxsize=max(1, queue_frames))
         lo, hi = self.renderer.box
@@ -266,11 +284,12 @@ class Viewer:
         self._writer.start()
 
     # -- the producer side (a Zenoh callback, the simulation's thread): never waits for Rerun --------
-    def add(self, step: int, rank: int, frame: Framelet, stats: dict, points=None):
-        """One peer's framelet of ``step``; queues the frame for logging when all peers' are in."""
+    def add(self, step: int, rank: int, frame: Framelet, stats: dict, points=None, surface=None):
+        """One peer's framelet of ``step`` (its point cloud and live surface piece, if any); queues
+        the frame for logging when all peers' are in."""
         with self._lock:
             entry = self.pending.setdefault(step, {"parts": {}, "since": time.perf_counter()})
-            entry["parts"][rank] = (frame, stats, points)
+            entry["parts"][rank] = (frame, stats, points, surface)
             if len(entry["parts"]) == self.world:
                 for older in sorted(s for s in self.pending if s < step):  # a later frame is complete
                     self._submit(older)
@@ -323,25 +342,27 @@ class Viewer:
         self.flush()
         self._queue.put(None)
         self._writer.join(timeout=timeout)
-        try:
-            self.rec.flush(timeout_sec=timeout)
-        except RuntimeError as e:  # a live viewer that stopped reading holds the stream
-            log.warning("viewer: Rerun did not take the last frames within %g s (%s): a live viewer that "
-                        "stopped reading; not waiting for it", timeout, e)
+        if not self.rec.close(timeout):  # the file is complete; a live viewer that stopped reading holds its stream
+            log.warning("viewer: the live Rerun viewer did not take the last frames within %g s: it stopped "
+                        "reading; not waiting for it (the recording file is complete)", timeout)
             self.stalled = True
             let_rerun_go(self.rec)
-            return
-        self.rec.disconnect()
 
     def summary(self) -> dict:
         """summary.json's "viewer": frames, drops, latency, recorded size."""
         out = {"frames": self.frames, "incomplete_frames": self.incomplete, "dropped_frames": self.dropped,
                "record": str(self.record) if self.record else None, "stalled": self.stalled}
+        live = self.rec.summary()
+        if live is not None:
+            out["live"] = live
         if self.latency_ms:
             out["composite_latency_ms"] = {"median": float(np.median(self.latency_ms)),
                                            "max": float(np.max(self.latency_ms))}
         if self.frame_bytes:
             out["encoded_mb_per_frame"] = float(np.mean(self.frame_bytes)) / 1e6
+        if self.surface_ms:
+            out["surface"] = {"meshes": len(self.surface_ms), "median_ms": float(np.median(self.surface_ms)),
+                              "mean_mb": float(np.mean(self.surface_bytes)) / 1e6, "bad_pieces": self.bad_surfaces}
         if self.record is not None and Path(self.record).exists():
             size = Path(self.record).stat().st_size
             out["record_mb"] = size / 1e6
@@ -435,6 +456,12 @@ class Viewer:
         return rgb, depth
 
     def _log_frame(self, step: int, parts: dict):
+        published = [p[1].get("wall_time") for p in parts.values()]
+        published = max((t for t in published if isinstance(t, (int, float))), default=None)
+        with self.rec.frame(published):  # one frame for the live stream: sent whole or dropped whole
+            self._log_parts(step, parts)
+
+    def _log_parts(self, step: int, parts: dict):
         rr, rec = self.rr, self.rec
         ranks = sorted(parts)
         stats = {r: parts[r][1] for r in ranks}
@@ -482,6 +509,8 @@ class Viewer:
             self.incomplete += 1
             rec.log("composite/status", rr.TextLog(f"step {step}: incomplete frame, no framelet from peer(s) "
                                                    f"{missing}", level="WARN"))
+        if any(stats[r].get("surface") is True for r in ranks):
+            size += self._log_surface([parts[r][3] for r in ranks if parts[r][3] is not None])
         pts = [parts[r][2] for r in ranks if parts[r][2] is not None and len(parts[r][2][0])]
         if pts:
             xyz = np.concatenate([p[0] for p in pts]).astype(np.float32)
@@ -501,6 +530,8 @@ class Viewer:
         rec.log("stats/kinetic_energy", rr.Scalars(sum(s["kinetic_energy"] for s in stats.values())))
         rec.log("stats/max_density_deviation", rr.Scalars(max(s["max_density_deviation"] for s in stats.values())))
         rec.log("stats/dropped_frames", rr.Scalars(self.dropped))
+        if self.rec.live is not None:  # frames the live viewer did not get (behind, or --live-fps)
+            rec.log("stats/live_dropped_frames", rr.Scalars(self.rec.live_dropped))
         probes = stats[ranks[0]].get("probes") if ranks[0] == 0 else None
         if probes:  # each sample at its own step ([[probes]], sphcore/probes.py); a dry height line is a gap
             for sample_step, t, values in probe_samples(probes):
@@ -525,6 +556,69 @@ class Viewer:
                 f", about {size * self.expected_frames / 1e6:.2g} MB for the run's {self.expected_frames} " \
                 f"frame{'s' if self.expected_frames != 1 else ''}"
             self.announce(f"sph viewer: about {size / 1e6:.2f} MB per frame recorded{total}")
+
+
+    def _log_surface(self, pieces: list) -> int:
+        """Assemble the peers' pieces of the colour field on the lattice, extract its 0.5 level and
+        log it as fluid/surface (a Mesh3D in 3D, line strips in 2D; cleared when there is none);
+        returns the bytes logged."""
+        rr, rec = self.rr, self.rec
+        start = time.perf_counter()
+        origin, step, shape = self.lattice
+        good = []
+        for at, field in pieces:  # off the wire: a piece must lie on the lattice
+            if (field.ndim == 3 and np.all(at >= 0) and np.all(at <= shape)  # (no overflow in the sum below)
+                    and np.all(at + np.array(field.shape) <= shape)):
+                good.append((at, field))
+            else:
+                self.bad_surfaces += 1
+                if self.bad_surfaces == 1:
+                    log.warning("viewer: dropped a surface piece of shape %s at %s: off the %s lattice",
+                                field.shape, at, shape.tolist())
+        if not good:
+            rec.log("fluid/surface", rr.Clear(recursive=False))
+            return 0
+        lo = np.min([at for at, _ in good], axis=0)
+        hi = np.max([at + np.array(f.shape) for at, f in good], axis=0)
+        pad = np.array([1, 1, 1 if self.scene.dim == 3 else 0])  # zeros around: the surface closes on the walls
+        field = np.zeros(tuple(hi - lo + 2 * pad), dtype=np.float32)
+        for at, f in good:
+            a = at - lo + pad
+            field[a[0]:a[0] + f.shape[0], a[1]:a[1] + f.shape[1], a[2]:a[2] + f.shape[2]] = f
+        from sphcore.surface import iso_surface
+        mesh = iso_surface(field / SURFACE_SCALE, origin + (lo - pad) * step, step)
+        size = 0
+        if mesh.n_points == 0:
+            rec.log("fluid/surface", rr.Clear(recursive=False))
+        elif self.scene.dim == 3:
+            mesh = mesh.triangulate()
+            xyz = np.asarray(mesh.points, dtype=np.float32)
+            tri = np.asarray(mesh.faces, dtype=np.uint32).reshape(-1, 4)[:, 1:]
+            normals = surface_normals(mesh)
+            rec.log("fluid/surface", rr.Mesh3D(vertex_positions=xyz, triangle_indices=tri, vertex_normals=normals,
+                                               albedo_factor=SURFACE_COLOUR))
+            size = xyz.nbytes + tri.nbytes + normals.nbytes
+        else:
+            segments = np.asarray(mesh.points, dtype=np.float32)[np.asarray(mesh.lines).reshape(-1, 3)[:, 1:]]
+            rec.log("fluid/surface", rr.LineStrips3D(segments, colors=[SURFACE_COLOUR[:3]],
+                                                     radii=rr.Radius.ui_points(1.5)))
+            size = segments.nbytes
+        self.surface_ms.append(1e3 * (time.perf_counter() - start))
+        self.surface_bytes.append(size)
+        return size
+
+
+SURFACE_COLOUR = [90, 160, 230, 255]  # the live surface: water blue (the points carry the quantity's colours)
+
+
+def surface_normals(mesh) -> np.ndarray:
+    """Unit normals at the mesh's vertices pointing out of the fluid (down the colour field), so
+    that Rerun shades the surface; from the field's gradient the contour filter computed."""
+    n = mesh.point_data.get("Normals")
+    if n is None:
+        mesh = mesh.compute_normals(auto_orient_normals=False, split_vertices=False)
+        n = mesh.point_data["Normals"]
+    return np.asarray(n, dtype=np.float32)
 
 
 # -- the wire side --------------------------------------------------------------------------------
@@ -573,19 +667,22 @@ def probe_samples(probes) -> list:
     return out
 
 
-def frame_arrays(frame: Framelet, stats: dict, points=None) -> dict:
+def frame_arrays(frame: Framelet, stats: dict, points=None, surface=None) -> dict:
     arrays = {"rect": np.array([frame.x0, frame.y0, frame.w, frame.h], dtype=np.int64), "rgb": frame.rgb,
               "depth": frame.depth, "id": frame.id,
               "stats": np.frombuffer(json.dumps(stats).encode(), dtype=np.uint8)}
     if points is not None:
         arrays["points"] = np.ascontiguousarray(points[0], dtype=np.float32)
         arrays["point_colours"] = np.ascontiguousarray(points[1], dtype=np.uint8)
+    if surface is not None:
+        arrays["surface_at"] = np.asarray(surface[0], dtype=np.int64)
+        arrays["surface"] = np.ascontiguousarray(surface[1], dtype=np.uint8)
     return arrays
 
 
 def frame_from_arrays(rank: int, a: dict):
-    """(framelet, stats, points: (positions, colours) or None) from a decoded message; ValueError if
-    the parts do not fit."""
+    """(framelet, stats, points: (positions, colours) or None, surface: (node offset, uint8 field) or
+    None) from a decoded message; ValueError if the parts do not fit."""
     x0, y0, w, h = (int(v) for v in a["rect"])
     if a["rgb"].shape != (h, w, 3) or a["depth"].shape != (h, w) or a["id"].shape != (h, w):
         raise ValueError(f"framelet planes do not match its rectangle {w} x {h}")
@@ -598,7 +695,15 @@ def frame_from_arrays(rank: int, a: dict):
         if colours is None or colours.shape != points.shape or colours.dtype != np.uint8:
             raise ValueError("point_colours must be (n, 3) uint8, one per point")
         points = (points, colours)
-    return Framelet(rank, x0, y0, a["rgb"], a["depth"], a["id"]), stats, points
+    surface = a.get("surface")
+    if surface is not None:
+        at = a.get("surface_at")
+        if surface.ndim != 3 or surface.dtype != np.uint8 or at is None or at.shape != (3,) or at.dtype != np.int64:
+            raise ValueError("surface must be (a, b, c) uint8 with surface_at (3,) int64")
+        surface = (at.copy(), surface)
+    if not isinstance(stats, dict):
+        raise ValueError("the statistics are not a JSON object")
+    return Framelet(rank, x0, y0, a["rgb"], a["depth"], a["id"]), stats, points, surface
 
 
 def run_viewer(scene, run_id: str, listen: list[str], connect: list[str], rec, box, world: int | None,
@@ -619,7 +724,7 @@ def run_viewer(scene, run_id: str, listen: list[str], connect: list[str], rec, b
             if phase == "end":
                 done.set()
                 return
-            frame, stats, points = frame_from_arrays(source, arrays)
+            frame, stats, points, surface = frame_from_arrays(source, arrays)
         except (wire.WireError, ValueError, KeyError) as e:
             log.warning("viewer: dropped a message on %s: %s", sample.key_expr, e)
             return
@@ -629,7 +734,7 @@ def run_viewer(scene, run_id: str, listen: list[str], connect: list[str], rec, b
             state["viewer"] = Viewer(scene, box, rec, n, stats.get("particles_total", particles),
                                      expected_frames=expected_frames, record=record,
                                      announce=lambda text: print(text, flush=True))
-        state["viewer"].add(step, source, frame, stats, points)
+        state["viewer"].add(step, source, frame, stats, points, surface)
 
     session = zenoh.open(zenoh_config(listen, connect, trust=trust))
     try:
@@ -648,11 +753,8 @@ def run_viewer(scene, run_id: str, listen: list[str], connect: list[str], rec, b
         session.close()
         if state["viewer"] is not None:
             state["viewer"].close()
-        else:
-            try:
-                rec.flush(timeout_sec=10.0)
-            except RuntimeError:
-                let_rerun_go(rec)
+        elif not rec.close(10.0):
+            let_rerun_go(rec)
     v = state["viewer"]
     if stats_path is not None and v is not None:
         write_summary(stats_path, dict(v.summary(), note="latency: from the newest framelet's publication to the "

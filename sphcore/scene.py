@@ -304,6 +304,12 @@ class RenderCamera:
     fov: float = spec(40.0, "vertical field of view (degrees)", range=(1.0, 170.0))
 
 
+# render.surface = "auto" turns the live surface on up to this many particles; its cost grows with the
+# particles (the colour field) and the surface's area (the mesh), docs/BENCHMARKS.md "Live surface"
+SURFACE_AUTO_MAX = 300_000
+SURFACE_NODES = 50_000  # render.surface_step = 0: about this many lattice nodes inside the fluid
+
+
 @dataclass(frozen=True)
 class Render:
     every: int = spec(10, "steps between rendered frames (each peer renders its own particles; 0 = no frames)",
@@ -317,6 +323,13 @@ class Render:
     camera: str = spec("default", "active camera: 'default' (frames the domain) or a [[render.cameras]] name")
     points_every: int = spec(0, "log every k-th particle (by id) as a 3D point cloud (0 = about 3000 points in all)",
                              range=(0, 10**9))
+    surface: str = spec("auto", "live fluid surface (the colour field's 0.5 level, a mesh in 3D, lines in 2D) beside "
+                                f"the point cloud; auto: on up to {SURFACE_AUTO_MAX:,} particles (docs/BENCHMARKS.md: "
+                                "its cost per frame)", choices=("auto", "on", "off"))
+    surface_every: int = spec(5, "frames between live surface meshes", range=(1, 10**6))
+    surface_step: float = spec(0.0, "live surface sampling grid step, in particle spacings (0 = 1 spacing, coarser "
+                                     f"above {SURFACE_NODES:,} particles so the mesh stays the same size)",
+                               range=(0.0, 4.0))
     cameras: list = spec([], "extra named cameras ([[render.cameras]])")
 
 

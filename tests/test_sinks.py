@@ -15,6 +15,7 @@ from nodes.rerun_sinks import choose_port, rerun_executable
 
 ROOT = Path(__file__).resolve().parent.parent
 TINY = ["configs/tiny.toml", "--steps", "30", "--set", "render.every=10", "--quiet"]
+LIVE_ALL = ["--live-fps", "0"]  # every frame live while the receiver keeps up (the default sends 10 per second)
 
 
 def listening_addresses(port: int) -> set[str]:
@@ -42,7 +43,7 @@ def test_a_run_records_and_streams_to_a_running_viewer_at_once(tmp_path):
         time.sleep(2.0)
         # When a run records to its folder and streams to the receiver
         done = subprocess.run([sys.executable, "-m", "launch.cli", "run", *TINY, "--out", str(tmp_path / "out"),
-                               "--connect", f"rerun+http://127.0.0.1:{port}/proxy"], cwd=ROOT, capture_output=True,
+                               "--connect", f"rerun+http://127.0.0.1:{port}/proxy", *LIVE_ALL], cwd=ROOT, capture_output=True,
                               text=True, timeout=300)
         assert done.returncode == 0, done.stderr
         time.sleep(1.0)
@@ -60,6 +61,7 @@ def test_a_run_records_and_streams_to_a_running_viewer_at_once(tmp_path):
         assert entity_steps(rrd)["/fluid/points"] == [10, 20, 30]  # the point cloud is on by default
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())["viewer"]
     assert summary["frames"] == 3 and summary["dropped_frames"] == 0
+    assert summary["live"]["frames"] == 3 and summary["live"]["dropped_frames"] == 0 and not summary["stalled"]
     assert summary["record_mb"] == pytest.approx((tmp_path / "out" / "run.rrd").stat().st_size / 1e6, rel=0.2)
     assert "MB per frame recorded" in done.stdout
 
@@ -109,3 +111,81 @@ def test_a_taken_default_port_gives_a_free_one():
         taken = s.getsockname()[1]
         got = choose_port(None, taken, "--web-port")
         assert got != taken and got > 0
+
+
+class Recorder:
+    """A stand-in for a Rerun stream: keeps the entity paths it was given; ``gate`` (an Event) held
+    closed blocks every call, as a stream to a viewer that stopped reading does once its buffer is full."""
+
+    def __init__(self, gate=None):
+        self.logged, self.gate = [], gate
+
+    def log(self, entity, *args, static=False):
+        if self.gate is not None:
+            self.gate.wait()
+        self.logged.append(entity)
+
+    def set_time(self, *args, **kwargs):
+        pass
+
+    def send_blueprint(self, *args, **kwargs):
+        self.log("blueprint")
+
+    def flush(self, timeout_sec=None):
+        if self.gate is not None and not self.gate.wait(timeout_sec):
+            raise RuntimeError("flush timed out")
+
+    def disconnect(self):
+        pass
+
+
+def test_a_live_viewer_that_stops_reading_never_holds_up_the_recording_file():
+    import threading
+
+    from nodes.rerun_sinks import Streams
+    # Given a file stream and a live stream whose viewer stopped reading
+    file, gate = Recorder(), threading.Event()
+    live = Recorder(gate)
+    streams = Streams(file, live, live_fps=0)
+    streams.send_blueprint("layout")
+    # When 50 frames are logged
+    start = time.perf_counter()
+    for step in range(50):
+        with streams.frame(published=time.time()):
+            streams.log(f"frame/{step}")
+    logging_took = time.perf_counter() - start
+    # Then the file got every frame at once, and closing gives up on the live side after its timeout
+    assert file.logged == ["blueprint"] + [f"frame/{i}" for i in range(50)]
+    assert logging_took < 1.0, logging_took
+    start = time.perf_counter()
+    assert streams.close(timeout=0.5) is False
+    assert time.perf_counter() - start < 2.0
+    # and the live side kept only the newest few frames waiting, the rest dropped and counted
+    assert streams.live_dropped >= 50 - 4 - 1 and streams.summary()["dropped_frames"] == streams.live_dropped
+    gate.set()  # the viewer reads again: what waited goes out, the newest frame last
+    deadline = time.monotonic() + 5
+    while "frame/49" not in live.logged and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert live.logged[0] == "blueprint" and live.logged[-1] == "frame/49"
+
+
+def test_live_frames_are_limited_to_the_frame_rate_and_the_newest_is_sent():
+    from nodes.rerun_sinks import Streams
+    # Given a live viewer that keeps up and a limit of 20 frames per second
+    file, live = Recorder(), Recorder()
+    streams = Streams(file, live, live_fps=20)
+    # When 60 frames come 100 per second, with a static entity logged in frame 30
+    for step in range(60):
+        with streams.frame(published=time.time()):
+            streams.log(f"frame/{step}")
+            if step == 30:
+                streams.log("info", static=True)
+        time.sleep(0.01)
+    assert streams.close(timeout=5.0) is True
+    # Then the file has all of them; live got about 20 per second, the last frame and the static one
+    assert len(file.logged) == 61
+    sent = [e for e in live.logged if e.startswith("frame/")]
+    assert 6 <= len(sent) <= 20, sent
+    assert sent[-1] == "frame/59" and "info" in live.logged and "frame/30" in live.logged
+    assert sent == sorted(sent, key=lambda e: int(e.split("/")[1]))
+    assert streams.live_frames + streams.live_dropped == 60
