@@ -144,7 +144,9 @@ def _start_viewer(cmd, env, timeout: float = 120.0):
     while not ready.wait(0.1):
         if proc.poll() is not None or time.monotonic() > deadline:
             _stop([proc], signal.SIGTERM)
-            raise RuntimeError(f"the viewer did not start (exit code {proc.returncode})")
+            from nodes.rerun_sinks import SinkError
+            raise SinkError(f"the viewer process did not start (exit code {proc.returncode}; its reason is above); "
+                            "no peer was started")
     return proc
 
 

@@ -120,13 +120,34 @@ def serve_web(grpc_port: int | None = None, web_port: int | None = None, bind: s
     return proc, url, f"http://{bind}:{web}/?url={url}"
 
 
+SPAWN_SETTLE_S = 2.0  # a native viewer that cannot draw here exits this soon after it starts listening
+
+
 def spawn_native(grpc_port: int | None = None):
-    """Open the native viewer (it stays open after the run) listening on loopback; returns its URL."""
+    """Open the native viewer (it stays open after the run) listening on loopback; returns its URL.
+    A viewer that cannot open a window (no display, a graphics driver without what it needs:
+    Mesa's llvmpipe lacks R32Float render targets) starts listening and exits within a moment:
+    that is a SinkError quoting its own reason, before the run starts."""
+    import tempfile
     port = choose_port(grpc_port, GRPC_PORT, "--grpc-port")
+    errors = tempfile.TemporaryFile(mode="w+b")
     proc = subprocess.Popen([rerun_executable(), "--bind", "127.0.0.1", "--port", str(port), "--expect-data-soon"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-    _wait_listening(proc, port, "127.0.0.1", "the native Rerun viewer")
-    return f"rerun+http://127.0.0.1:{port}/proxy"
+                            stdout=subprocess.DEVNULL, stderr=errors, start_new_session=True)
+    try:
+        _wait_listening(proc, port, "127.0.0.1", "the native Rerun viewer")
+        proc.wait(timeout=SPAWN_SETTLE_S)
+    except subprocess.TimeoutExpired:  # still running: it has its window
+        errors.close()
+        return f"rerun+http://127.0.0.1:{port}/proxy"
+    except SinkError:
+        pass
+    errors.seek(0)
+    text = errors.read()[-20000:].decode(errors="replace")
+    errors.close()
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip().startswith("Error:")]
+    reason = lines[-1][len("Error:"):].strip() if lines else f"exit code {proc.returncode}"
+    raise SinkError(f"--spawn: the native Rerun viewer could not start here ({reason[:300]}); use --serve-web and "
+                    "a browser, or leave --spawn out and open the recording later (sph replay OUT/run.rrd)")
 
 
 def _stop(proc):

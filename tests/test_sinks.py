@@ -189,3 +189,68 @@ def test_live_frames_are_limited_to_the_frame_rate_and_the_newest_is_sent():
     assert sent[-1] == "frame/59" and "info" in live.logged and "frame/30" in live.logged
     assert sent == sorted(sent, key=lambda e: int(e.split("/")[1]))
     assert streams.live_frames + streams.live_dropped == 60
+
+
+FAKE_VIEWER = """#!{python}
+import socket, sys, time
+port = int(sys.argv[sys.argv.index("--port") + 1])
+s = socket.socket()
+s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+s.bind(("127.0.0.1", port))
+s.listen()
+if {dies}:
+    time.sleep(0.3)
+    print("WARN something harmless", file=sys.stderr)
+    print("Error: app creation error: no adapter can draw R32Float", file=sys.stderr)
+    sys.exit(1)
+time.sleep(8)  # (long enough for the test; a real viewer stays open)
+"""
+
+
+@pytest.mark.parametrize("dies", [True, False])
+def test_spawn_opens_the_native_viewer_or_says_why_it_cannot(tmp_path, monkeypatch, dies):
+    import os
+
+    from nodes import rerun_sinks
+    # Given a native viewer that starts listening and then either keeps its window or exits at once
+    # (as Rerun's does on Mesa's llvmpipe: no R32Float render target)
+    exe = tmp_path / "rerun"
+    exe.write_text(FAKE_VIEWER.format(python=sys.executable, dies=dies))
+    os.chmod(exe, 0o755)
+    monkeypatch.setattr(rerun_sinks, "rerun_executable", lambda: str(exe))
+    port = free_ports(1)[0]
+    # When --spawn opens it
+    if dies:
+        # Then a viewer that exited is a clear error quoting its reason, before anything runs
+        with pytest.raises(rerun_sinks.SinkError, match="could not start here .app creation error: no adapter"):
+            rerun_sinks.spawn_native(port)
+    else:
+        # Then one that stays gets the stream
+        assert rerun_sinks.spawn_native(port) == f"rerun+http://127.0.0.1:{port}/proxy"
+        assert listening_addresses(port) == {"127.0.0.1"}
+
+
+@pytest.mark.slow
+def test_a_run_streaming_to_a_stopped_viewer_records_every_frame(tmp_path):
+    import os
+    import signal
+    # Given a live receiver that stops reading (SIGSTOP) before the run starts
+    port = free_ports(1)[0]
+    receiver = subprocess.Popen([rerun_executable(), "--save", str(tmp_path / "live.rrd"), "--port", str(port)],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        time.sleep(2.0)
+        os.kill(receiver.pid, signal.SIGSTOP)
+        done = subprocess.run([sys.executable, "-m", "launch.cli", "run", "configs/dam_break.toml", "--set",
+                               "particles.spacing=0.04", "--steps", "300", "--set", "render.every=10", "--quiet",
+                               "--out", str(tmp_path / "out"), "--connect", f"rerun+http://127.0.0.1:{port}/proxy"],
+                              cwd=ROOT, capture_output=True, text=True, timeout=300)
+    finally:
+        receiver.kill()
+        receiver.wait(timeout=10)
+    # Then the run ends, its recording holds every frame, and summary.json says the live side stalled
+    assert done.returncode == 0, done.stderr
+    assert sorted(frames(tmp_path / "out" / "run.rrd")) == list(range(10, 301, 10))
+    shown = json.loads((tmp_path / "out" / "summary.json").read_text())["viewer"]
+    assert shown["frames"] == 30 and shown["stalled"] is True
+    assert "the live Rerun viewer stopped reading" in done.stderr
