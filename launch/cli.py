@@ -353,12 +353,13 @@ def build_parser() -> argparse.ArgumentParser:
         "validate", help="compare with reference solutions and experiments; exit 1 if a metric fails",
         description="Run validation cases (hydrostatic and hydrostatic_3d, dam_break and dam_break_3d vs Martin & "
                     "Moyce, taylor_green, "
-                    "oscillating_drop vs Monaghan & Rafiee, poiseuille vs Morris et al., hydrostatic_probes: the "
-                    "tank's [[probes]] vs rho0 g (H0 - y) and the fill height), print one line "
+                    "oscillating_drop vs Monaghan & Rafiee, poiseuille and couette vs Morris et al., floating_box vs "
+                    "Archimedes, hydrostatic_probes: the tank's [[probes]] vs rho0 g (H0 - y) and the fill height, "
+                    "cavity: the lid-driven cavity vs Ghia et al. 1982), print one line "
                     "per metric (name value tolerance PASS|FAIL) and write a plot per case.")
     validate.add_argument("cases", nargs="*", metavar="CASE",
                           help="hydrostatic, hydrostatic_3d, dam_break, dam_break_3d, taylor_green, oscillating_drop, "
-                               "poiseuille, hydrostatic_probes")
+                               "poiseuille, couette, floating_box, hydrostatic_probes, cavity")
     validate.add_argument("--all", action="store_true", help="every case")
     validate.add_argument("--quick", action="store_true", help="coarser resolution: under ~2 minutes per case")
     validate.add_argument("--out", type=Path, default=Path("runs/validate"), help="folder for the plots")

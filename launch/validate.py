@@ -3,7 +3,7 @@ case, exit code 1 if any metric fails.
 
     sph validate CASE [--quick] [--out DIR]      CASE: hydrostatic, hydrostatic_3d, dam_break, dam_break_3d,
                                                        taylor_green, oscillating_drop, poiseuille, couette,
-                                                       floating_box, hydrostatic_probes
+                                                       floating_box, hydrostatic_probes, cavity
     sph validate --all [--quick]
 
 Each case is a function of (quick, out folder) returning its metrics; ``--quick`` uses a coarser
@@ -32,6 +32,20 @@ MARTIN_MOYCE_T = np.array([0.832, 1.219, 1.997, 2.547, 3.345, 4.034, 4.418, 5.09
 MARTIN_MOYCE_Z = np.array([1.217, 1.474, 2.292, 2.995, 4.134, 4.944, 5.881, 6.980, 7.945, 8.966, 9.986, 10.963,
                            11.977, 13.005, 13.970])
 MARTIN_MOYCE_A = 2.25 * 0.0254  # m: the experiment's column width
+
+# Ghia, Ghia & Shin (1982), "High-Re solutions for incompressible flow using the Navier-Stokes
+# equations and a multigrid method", J. Comput. Phys. 48:387-411, lid-driven cavity, Re = 100 columns
+# (129 x 129 grid): Table I, u / U along the vertical centreline x = 0.5 at the heights y / L;
+# Table II, v / U along the horizontal centreline y = 0.5 at the abscissae x / L. The first and last
+# rows are the walls (the lid moves at U along x).
+GHIA_Y = np.array([1.0000, 0.9766, 0.9688, 0.9609, 0.9531, 0.8516, 0.7344, 0.6172, 0.5000, 0.4531, 0.2813,
+                   0.1719, 0.1016, 0.0703, 0.0625, 0.0547, 0.0000])
+GHIA_U_RE100 = np.array([1.00000, 0.84123, 0.78871, 0.73722, 0.68717, 0.23151, 0.00332, -0.13641, -0.20581,
+                         -0.21090, -0.15662, -0.10150, -0.06434, -0.04775, -0.04192, -0.03717, 0.00000])
+GHIA_X = np.array([1.0000, 0.9688, 0.9609, 0.9531, 0.9453, 0.9063, 0.8594, 0.8047, 0.5000, 0.2344, 0.2266,
+                   0.1563, 0.0938, 0.0781, 0.0703, 0.0625, 0.0000])
+GHIA_V_RE100 = np.array([0.00000, -0.05906, -0.07391, -0.08864, -0.10313, -0.16914, -0.22445, -0.24533, 0.05454,
+                         0.17527, 0.17507, 0.16077, 0.12317, 0.10890, 0.10091, 0.09233, 0.00000])
 
 
 @dataclass
@@ -547,6 +561,129 @@ def floating_box(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions
     return metrics
 
 
+def mls_velocity(x, v, points, H: float):
+    """Velocity at each of ``points`` (k, 2) from the particles at ``x`` (n, 2) with velocities ``v``
+    (n, 2): the value at the point of the linear field u(y) = a + B (y - point) fitted by least
+    squares to the particles within the support H, weighted by the Wendland C2 kernel (moving least
+    squares, first order; Dilts 1999, Int. J. Numer. Meth. Eng. 44:1115). A Shepard average is
+    exact only for a constant field and near a wall reads the value at the centroid of the fluid in
+    the support, a fraction of H inside (docs/USAGE.md, Probes); the linear fit is exact for a linear
+    field there too, so a profile against a wall is not biased by the measurement."""
+    values = np.empty((len(points), v.shape[1]))
+    for k, point in enumerate(points):
+        offset = x - point
+        q = np.sqrt(np.einsum("ij,ij->i", offset, offset)) / H
+        near = q < 1.0
+        weight = (1.0 - q[near]) ** 4 * (1.0 + 4.0 * q[near])
+        basis = np.column_stack([np.ones(near.sum()), offset[near]])
+        moments = basis.T @ (weight[:, None] * basis)
+        values[k] = np.linalg.solve(moments, basis.T @ (weight[:, None] * v[near]))[0]
+    return values
+
+
+def largest_gap(x, lo, hi, spacing: float, margin: float = 0.0):
+    """The largest distance from a point of the box [lo + margin, hi - margin] (sampled every half
+    spacing) to its nearest particle, and that point: a particle lattice gives 0.71 spacings (0.5 at
+    a wall), a disordered one about 1; a void opened by tensile instability (negative pressure
+    pulling particles apart) is a hole several spacings wide."""
+    axes = [np.arange(a + margin, b - margin + 0.25 * spacing, 0.5 * spacing) for a, b in zip(lo, hi)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, len(axes))
+    gap, where = 0.0, grid[0]
+    for chunk in np.array_split(grid, max(1, len(grid) // 256)):
+        d2 = np.min(np.sum((chunk[:, None, :] - x[None, :, :]) ** 2, axis=2), axis=1)
+        if np.sqrt(d2.max()) > gap:
+            gap, where = float(np.sqrt(d2.max())), chunk[np.argmax(d2)]
+    return gap, where
+
+
+# The cavity is at steady state from about 7 lid transits on (L / U = 1 s; 40 across: the RMS of
+# single snapshots falls to its level by t = 7 s and stays there to t = 30 s); WCSPH's particle
+# noise makes one snapshot's profile scatter by about 1 % of U, so the metric averages the profiles
+# sampled every CAVITY_SAMPLE_DT over the last part of the run.
+CAVITY_SAMPLE_DT = 0.5  # s
+
+
+def cavity(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions | None = None) -> list[Metric]:
+    """The lid-driven cavity at Re = 100 (a moving wall in a closed box) against Ghia, Ghia & Shin
+    (1982) Tables I and II: u along x = 0.5 and v along y = 0.5 at their interior points, from the
+    profiles averaged over the steady part of the run, in units of the lid speed U."""
+    opts = opts or CaseOptions(backend)
+    dx = opts.dx or (0.025 if quick else 0.0125)
+    scene = load_scene(CONFIGS / "cavity_2d.toml", [f"particles.spacing={dx}", *opts.overrides])
+    lid = scene.domain.planes[-1]
+    U, L = lid.velocity[0], lid.point[1]
+    H = scene.sph.support * dx
+    t_end, t_from = (10.0, 5.0) if quick else (20.0, 10.0)
+    inner_y, inner_x = (GHIA_Y > 0) & (GHIA_Y < 1), (GHIA_X > 0) & (GHIA_X < 1)
+    line = np.linspace(0.0, 1.0, 101)
+    points_u = L * np.column_stack([np.full(inner_y.sum() + line.size, 0.5), np.r_[GHIA_Y[inner_y], line]])
+    points_v = L * np.column_stack([np.r_[GHIA_X[inner_x], line], np.full(inner_x.sum() + line.size, 0.5)])
+    sim = Simulation(scene, opts.precision, opts.backend)
+    clock = _Clock(sim, opts, "cavity", t_end)
+    samples_u, samples_v = [], []
+    for t_out in np.arange(t_from + CAVITY_SAMPLE_DT, t_end + 1e-9, CAVITY_SAMPLE_DT):
+        while sim.t < t_out:
+            sim.step(dt_cap=t_out - sim.t)
+            clock.tick()
+        n = sim.state.n_owned
+        x, v = sim.state.x[:n, :2].astype(np.float64), sim.synchronised_velocity()[:n, :2].astype(np.float64)
+        samples_u.append(mls_velocity(x, v, points_u, H)[:, 0] / U)
+        samples_v.append(mls_velocity(x, v, points_v, H)[:, 1] / U)
+    clock.done()
+    samples_u, samples_v = np.array(samples_u), np.array(samples_v)
+    m_u, m_v = inner_y.sum(), inner_x.sum()
+    error = np.r_[samples_u[:, :m_u].mean(axis=0) - GHIA_U_RE100[inner_y],
+                  samples_v[:, :m_v].mean(axis=0) - GHIA_V_RE100[inner_x]]
+    half = len(samples_u) // 2
+    drift = max(float(np.max(np.abs(s[half:, :m].mean(axis=0) - s[:half, :m].mean(axis=0))))
+                for s, m in ((samples_u, m_u), (samples_v, m_v)))
+    gap, where = largest_gap(x, (0.0, 0.0), (L, L), dx)
+    bulk, _ = largest_gap(x, (0.0, 0.0), (L, L), dx, margin=H)
+    log.info("cavity: mean profile - Ghia (u / U at y = %s; v / U at x = %s): %s",
+             ", ".join(f"{y:g}" for y in GHIA_Y[inner_y]), ", ".join(f"{a:g}" for a in GHIA_X[inner_x]),
+             " ".join(f"{e:+.4f}" for e in error))
+    window = f"t = {t_from:g}-{t_end:g} s"
+    metrics = [Metric("cavity.centreline_rms_of_U", float(np.sqrt(np.mean(error**2))), 0.03,
+                      f"{error.size} points of Ghia's Tables I-II, {len(samples_u)} profiles over {window}; "
+                      f"{sim.n_particles} particles"),
+               Metric("cavity.centreline_max_of_U", float(np.max(np.abs(error))), 0.10,
+                      f"at {'u, y' if np.argmax(np.abs(error)) < m_u else 'v, x'} = "
+                      f"{np.r_[GHIA_Y[inner_y], GHIA_X[inner_x]][np.argmax(np.abs(error))]:g}; "
+                      f"the window's halves differ by up to {drift:.4f}"),
+               Metric("cavity.largest_gap_of_dx", gap / dx, 1.5,
+                      f"distance to the nearest particle at t = {sim.t:g} s, at ({where[0] / L:.3g}, "
+                      f"{where[1] / L:.3g}) L; farther than H from the walls: {bulk / dx:.3g}")]
+    if not opts.plot:
+        return metrics
+    plt = _plot()
+    fig, (ax_u, ax_v, ax_p) = plt.subplots(1, 3, figsize=(13, 4.2))
+    ax_u.plot(samples_u[:, m_u:].mean(axis=0), line, "-", lw=1.2, label=f"sphfluid, mean over {window}")
+    ax_u.plot(samples_u[-1, m_u:], line, ":", lw=0.8, color="C0", label=f"sphfluid at t = {sim.t:g} s")
+    ax_u.plot(GHIA_U_RE100, GHIA_Y, "ks", mfc="none", ms=5, label="Ghia et al. 1982, Table I")
+    ax_u.set_xlabel("u / U on x = 0.5")
+    ax_u.set_ylabel("y / L")
+    ax_u.legend(fontsize=7)
+    ax_v.plot(line, samples_v[:, m_v:].mean(axis=0), "-", lw=1.2, label=f"sphfluid, mean over {window}")
+    ax_v.plot(line, samples_v[-1, m_v:], ":", lw=0.8, color="C0", label=f"sphfluid at t = {sim.t:g} s")
+    ax_v.plot(GHIA_X, GHIA_V_RE100, "ks", mfc="none", ms=5, label="Ghia et al. 1982, Table II")
+    ax_v.set_xlabel("x / L")
+    ax_v.set_ylabel("v / U on y = 0.5")
+    ax_v.legend(fontsize=7)
+    speed = np.hypot(v[:, 0], v[:, 1]) / U
+    dots = ax_p.scatter(x[:, 0] / L, x[:, 1] / L, c=speed, s=max(0.5, 4000.0 / len(x)), cmap="viridis", vmin=0, vmax=1)
+    fig.colorbar(dots, ax=ax_p, label="|v| / U")
+    ax_p.set_aspect("equal")
+    ax_p.set_xlim(0, 1)
+    ax_p.set_ylim(0, 1)
+    ax_p.set_title(f"particles at t = {sim.t:g} s", fontsize=9)
+    fig.suptitle(f"Lid-driven cavity, Re = {U * L / scene.sph.nu:g}, {round(L / dx)} across, "
+                 f"c0 = {scene.sph.sound_speed / U:g} U")
+    fig.tight_layout()
+    fig.savefig(out / "cavity.png", dpi=100)
+    plt.close(fig)
+    return metrics
+
+
 def _start_up_flow(scene, opts, out, name, y0, L, scale, exact, scale_name, title) -> list[Metric]:
     """A channel flow from rest between plates at y0 and y0 + L against its series solution
     ``exact(y, t)``: the largest velocity error at Morris et al.'s five times, over ``scale``."""
@@ -670,7 +807,8 @@ def hydrostatic_probes(quick: bool, out: Path, backend: str = "cpu", opts: CaseO
 
 CASES = {"hydrostatic": hydrostatic, "hydrostatic_3d": hydrostatic_3d, "dam_break": dam_break, "dam_break_3d": dam_break_3d,
          "taylor_green": taylor_green, "oscillating_drop": oscillating_drop, "poiseuille": poiseuille,
-         "couette": couette, "floating_box": floating_box, "hydrostatic_probes": hydrostatic_probes}
+         "couette": couette, "floating_box": floating_box, "hydrostatic_probes": hydrostatic_probes,
+         "cavity": cavity}
 
 
 def run_validate(names: list[str], quick: bool, out: Path, backend: str = "cpu", overrides: tuple = ()) -> int:
