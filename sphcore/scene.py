@@ -326,7 +326,8 @@ class Render:
     surface: str = spec("auto", "live fluid surface (the colour field's 0.5 level, a mesh in 3D, lines in 2D) beside "
                                 f"the point cloud; auto: on up to {SURFACE_AUTO_MAX:,} particles (docs/BENCHMARKS.md: "
                                 "its cost per frame)", choices=("auto", "on", "off"))
-    surface_every: int = spec(5, "frames between live surface meshes", range=(1, 10**6))
+    surface_every: int = spec(10, "frames between live surface meshes (each adds ~0.4 MB to the recording at most: "
+                                  "the mesh's size is bounded, render.surface_step)", range=(1, 10**6))
     surface_step: float = spec(0.0, "live surface sampling grid step, in particle spacings (0 = 1 spacing, coarser "
                                      f"above {SURFACE_NODES:,} particles so the mesh stays the same size)",
                                range=(0.0, 4.0))
