@@ -17,10 +17,16 @@ behind a wall uses the body force in the wall's frame, b - a_w (Adami, Hu & Adam
 the collision guard reflects the velocity relative to the wall. A plane moving along itself (a
 Couette plate, a cavity lid) is not displaced as far as the fluid can tell, but drags it.
 
+Or X(t) is a table (``Path``, the key ``path``): rows (t_k, X_k) joined by the monotone piecewise
+cubic Hermite interpolant of Fritsch & Carlson (1980) on each axis, whose slopes are zero at the
+first and last rows; before the first row and after the last the wall rests. So u_w is continuous
+everywhere (no impulse into the fluid at a row, and none at the ends), the path never overshoots
+the table between rows (a paddle does not pass its stops), and a_w is piecewise linear.
+
 Every peer evaluates X(t), u_w(t), a_w(t) from the same t in float64, so all peers move their walls
 to the same bits; a resumed run moves them to its checkpoint's t. A ``FloatingBody`` answers the
 same three questions from its state instead of from t: the fluid moves it (two-way coupling).
-Rotation and tabulated motion are not available yet.
+Rotation is not available yet.
 """
 from __future__ import annotations
 
@@ -39,9 +45,11 @@ class Motion:
     phase: float             # phi (rad)
 
     @classmethod
-    def of(cls, item) -> "Motion | None":
-        """The motion of a scene item with velocity, amplitude, frequency and phase keys (a plane,
-        an obstacle); None if it does not move."""
+    def of(cls, item) -> "Motion | Path | None":
+        """The motion of a scene item with velocity, amplitude, frequency and phase keys, or a path
+        (a plane, an obstacle); None if it does not move."""
+        if getattr(item, "path", ()):
+            return Path.of(item.path)
         velocity = np.zeros(3)
         velocity[: len(item.velocity)] = item.velocity
         amplitude = np.zeros(3)
@@ -65,6 +73,93 @@ class Motion:
     def largest_speed(self) -> float:
         """An upper bound of |u_w(t)| (m/s): the scene refuses walls as fast as sound."""
         return math.hypot(*self.velocity) + math.hypot(*self.amplitude) * self.omega  # hypot: no overflow
+
+
+@dataclass(frozen=True)
+class Path:
+    """A wall's tabulated translation (module docstring): times t (k,) s increasing, displacements X
+    (k, 3) m, and the interpolant's slopes m (k, 3) m/s at the rows."""
+    t: np.ndarray
+    X: np.ndarray
+    m: np.ndarray
+
+    @classmethod
+    def of(cls, rows) -> "Path":
+        """From the scene's rows [t, x, y(, z)] (checked by the scene: increasing t, X_0 = 0)."""
+        table = np.asarray(rows, dtype=np.float64)
+        t = table[:, 0].copy()
+        X = np.zeros((len(t), 3))
+        X[:, : table.shape[1] - 1] = table[:, 1:]
+        return cls(t, X, _monotone_slopes(t, X))
+
+    def _segment(self, t: float):
+        """(k, h, s) of the row interval holding t (s in [0, 1]), or None outside the table."""
+        if not self.t[0] < t < self.t[-1]:
+            return None
+        k = min(int(np.searchsorted(self.t, t, side="right")) - 1, len(self.t) - 2)
+        h = self.t[k + 1] - self.t[k]
+        return k, h, (t - self.t[k]) / h
+
+    def displacement(self, t: float) -> np.ndarray:
+        seg = self._segment(t)
+        if seg is None:
+            return (self.X[0] if t <= self.t[0] else self.X[-1]).copy()
+        k, h, s = seg
+        s2, s3 = s * s, s * s * s
+        return ((2 * s3 - 3 * s2 + 1) * self.X[k] + (s3 - 2 * s2 + s) * h * self.m[k]
+                + (-2 * s3 + 3 * s2) * self.X[k + 1] + (s3 - s2) * h * self.m[k + 1])
+
+    def wall_velocity(self, t: float) -> np.ndarray:
+        seg = self._segment(t)
+        if seg is None:
+            return np.zeros(3)
+        k, h, s = seg
+        s2 = s * s
+        return ((6 * s2 - 6 * s) * self.X[k] / h + (3 * s2 - 4 * s + 1) * self.m[k]
+                + (-6 * s2 + 6 * s) * self.X[k + 1] / h + (3 * s2 - 2 * s) * self.m[k + 1])
+
+    def wall_acceleration(self, t: float) -> np.ndarray:
+        seg = self._segment(t)
+        if seg is None:
+            return np.zeros(3)
+        k, h, s = seg
+        return ((12 * s - 6) * self.X[k] / h ** 2 + (6 * s - 4) * self.m[k] / h
+                + (-12 * s + 6) * self.X[k + 1] / h ** 2 + (6 * s - 2) * self.m[k + 1] / h)
+
+    def largest_speed(self) -> float:
+        """An upper bound of |u_w(t)| (m/s): on each interval each axis's speed is a quadratic in s,
+        whose largest magnitude is at an end or at its vertex; the axes' largest, combined."""
+        h = np.diff(self.t)[:, None]
+        d = np.diff(self.X, axis=0)
+        m0, m1 = self.m[:-1], self.m[1:]
+        # u(s) = a s^2 + b s + c on each interval (per axis), the derivative of the Hermite cubic
+        a = 3 * (m0 + m1) - 6 * d / h
+        b = 6 * d / h - 4 * m0 - 2 * m1
+        c = m0
+        ends = np.maximum(np.abs(c), np.abs(a + b + c))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            sv = np.where(a != 0, -b / (2 * a), -1.0)
+        inside = (sv > 0) & (sv < 1)
+        vertex = np.where(inside, np.abs(a * sv * sv + b * sv + c), 0.0)
+        per_axis = np.maximum(ends, vertex).max(axis=0)
+        return float(math.hypot(*per_axis))
+
+
+def _monotone_slopes(t: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """Fritsch-Carlson slopes (k, 3) at the rows: 0 at the ends and where the table turns, else the
+    weighted harmonic mean of the neighbouring secants (which keeps each interval monotone)."""
+    h = np.diff(t)[:, None]
+    delta = np.diff(X, axis=0) / h
+    m = np.zeros_like(X)
+    if len(t) > 2:
+        d0, d1 = delta[:-1], delta[1:]
+        h0, h1 = h[:-1], h[1:]
+        w1, w2 = 2 * h1 + h0, h1 + 2 * h0
+        same = d0 * d1 > 0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            mean = (w1 + w2) / (w1 / d0 + w2 / d1)
+        m[1:-1] = np.where(same, mean, 0.0)
+    return m
 
 
 @dataclass

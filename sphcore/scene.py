@@ -28,12 +28,12 @@ class SceneError(ValueError):
 
 
 def spec(default, help: str, *, range: tuple | None = None, choices=None, min_exclusive: bool = False,
-         length: tuple | None = None, control: bool | str | None = None):
+         length: tuple | None = None, control: bool | str | None = None, rows: int | None = None):
     """Declare a scene key: default, help text and constraints (checked by ``_check_value``), and
     ``control``: LIVE if the key may change while the run goes on, else why not (None: the reason
     of its section, ``SECTION_CONTROL``)."""
     meta = {"help": help, "range": range, "choices": choices, "min_exclusive": min_exclusive, "length": length,
-            "control": control}
+            "control": control, "rows": rows}
     if isinstance(default, list):  # arrays of tables are held as tuples, exactly as _build stores them
         return field(default=tuple(default), metadata=meta)
     if isinstance(default, dict):
@@ -192,9 +192,13 @@ def _motion(what: str) -> dict:
         "amplitude": spec((0.0, 0.0, 0.0), f"the {what}'s oscillation amplitude (m)", length=VEC),
         "frequency": spec(0.0, "oscillation frequency (Hz; 0 = none)", range=(0.0, math.inf)),
         "phase": spec(0.0, "oscillation phase at t = 0 (degrees)", range=(-360.0, 360.0)),
+        "path": spec((), f"instead: a table of the {what}'s displacement from where the scene puts it, rows [t, x, y(, z)] "
+                         "(s, m), t increasing, the first row's displacement 0; a monotone cubic between rows, at "
+                         "rest before the first and after the last", rows=MAX_PATH_ROWS),
     }
 
 
+MAX_PATH_ROWS = 100_000  # rows of a wall's path table
 _PLANE_MOTION, _OBSTACLE_MOTION = _motion("plane"), _motion("obstacle")
 
 
@@ -206,6 +210,7 @@ class Plane:
     amplitude: tuple = _PLANE_MOTION["amplitude"]
     frequency: float = _PLANE_MOTION["frequency"]
     phase: float = _PLANE_MOTION["phase"]
+    path: tuple = _PLANE_MOTION["path"]
 
 
 @dataclass(frozen=True)
@@ -242,6 +247,7 @@ class Obstacle:
     amplitude: tuple = _OBSTACLE_MOTION["amplitude"]
     frequency: float = _OBSTACLE_MOTION["frequency"]
     phase: float = _OBSTACLE_MOTION["phase"]
+    path: tuple = _OBSTACLE_MOTION["path"]
     density: float = spec(0.0, "a floating body: its density (kg/m^3), moved by the fluid's force and the body "
                                "forces (sphere and box; 0 = fixed, or moved as velocity/amplitude say)",
                           range=(0.0, math.inf))
@@ -469,6 +475,16 @@ def _check_value(key: str, f: dataclasses.Field, value: Any):
     elif t == "str":
         if not isinstance(value, str):
             raise SceneError(f"{key} = {_short(value)}: expected {_type_name(t)}")
+    elif t == "tuple" and meta.get("rows"):  # a table: rows of finite numbers (their lengths: the key's own check)
+        if not isinstance(value, (list, tuple)) or len(value) > meta["rows"]:
+            raise SceneError(f"{key} = {_short(value)}: expected an array of at most {meta['rows']:,} rows")
+        out = []
+        for r, row in enumerate(value):
+            if not isinstance(row, (list, tuple)) or not all(
+                    not isinstance(e, bool) and isinstance(e, (int, float)) and _finite(e) for e in row):
+                raise SceneError(f"{key}[{r}] = {_short(row)}: expected a row of finite numbers")
+            out.append(tuple(float(e) for e in row))
+        return tuple(out)
     elif t == "tuple":
         if not isinstance(value, (list, tuple)):
             raise SceneError(f"{key} = {_short(value)}: expected {_type_name(t)}")
@@ -879,16 +895,45 @@ def _check_motion(s, key: str, item):
                          "(Hz)")
     if item.frequency > 0.0 and not any(item.amplitude):
         raise SceneError(f"{key}.frequency = {item.frequency!r}: an oscillation needs a non-zero {key}.amplitude (m)")
+    if item.path:
+        _check_path(s, key, item)
     from sphcore.motion import Motion
     motion = Motion.of(item)
     speed = motion.largest_speed() if motion is not None else 0.0
     if speed >= s.sph.sound_speed:
-        raise SceneError(f"{key}.velocity / amplitude / frequency: the wall moves at up to {speed:.3g} m/s, not below "
+        what = "path" if item.path else "velocity / amplitude / frequency"
+        raise SceneError(f"{key}.{what}: the wall moves at up to {speed:.3g} m/s, not below "
                          f"sph.sound_speed = {s.sph.sound_speed:g} m/s; a weakly compressible fluid needs walls "
                          "slower than sound (10 x slower for 1 % density error)")
-    if (any(item.velocity) or any(item.amplitude)) and s.sph.solver != "wcsph":
-        raise SceneError(f"{key}.velocity / amplitude: moving walls need sph.solver = 'wcsph' (DFSPH's solves do not "
-                         "see the walls move)")
+    if motion is not None and s.sph.solver != "wcsph":
+        raise SceneError(f"{key}.{'path' if item.path else 'velocity / amplitude'}: moving walls need sph.solver = "
+                         "'wcsph' (DFSPH's solves do not see the walls move)")
+
+
+def _check_path(s, key: str, item):
+    """A tabulated motion: rows [t, x, y(, z)] of the scene's dimension, times increasing from 0 or later,
+    starting at zero displacement, and no velocity or oscillation besides."""
+    if any(item.velocity) or any(item.amplitude) or item.frequency > 0.0:
+        raise SceneError(f"{key}.path: give a wall either a path or velocity / amplitude / frequency, not both")
+    rows = item.path
+    if len(rows) < 2:
+        raise SceneError(f"{key}.path = {_short([list(r) for r in rows])}: a path needs at least 2 rows [t, x, y"
+                         f"{', z' if s.dim == 3 else ''}]")
+    width = s.dim + 1
+    for r, row in enumerate(rows):
+        if len(row) != width:
+            raise SceneError(f"{key}.path[{r}] = {_short(list(row))}: expected {width} numbers, [t, x, y"
+                             f"{', z' if s.dim == 3 else ''}] (s, m)")
+    times = [row[0] for row in rows]
+    if times[0] < 0.0:
+        raise SceneError(f"{key}.path[0] = {_short(list(rows[0]))}: the first time must be >= 0 s")
+    for r in range(1, len(rows)):
+        if not times[r] > times[r - 1]:
+            raise SceneError(f"{key}.path[{r}] = {_short(list(rows[r]))}: times must increase (the row before is at "
+                             f"t = {times[r - 1]:g} s)")
+    if any(rows[0][1:]):
+        raise SceneError(f"{key}.path[0] = {_short(list(rows[0]))}: the first row's displacement must be 0 (the "
+                         "path is measured from where the scene puts the wall)")
 
 
 def _check_floating(s, key: str, ob):
@@ -897,9 +942,9 @@ def _check_floating(s, key: str, ob):
     if ob.shape == "mesh":
         raise SceneError(f"{key}.density = {ob.density!r}: only sphere and box obstacles can float (a mesh has no "
                          "volume here)")
-    if any(ob.velocity) or any(ob.amplitude):
+    if any(ob.velocity) or any(ob.amplitude) or ob.path:
         raise SceneError(f"{key}.density = {ob.density!r}: a floating body is moved by the fluid; give it no "
-                         f"{key}.velocity or {key}.amplitude")
+                         f"{key}.velocity, {key}.amplitude or {key}.path")
     if s.sph.solver != "wcsph":
         raise SceneError(f"{key}.density = {ob.density!r}: floating bodies need sph.solver = 'wcsph'")
     if ob.density < 0.1 * s.fluid.rest_density:

@@ -55,6 +55,68 @@ def test_the_displacement_starts_at_zero_and_its_derivatives_are_the_velocity_an
 
 
 @pytest.mark.fast
+def test_a_path_passes_through_its_rows_smoothly_and_rests_outside_them():
+    from sphcore.motion import Path
+
+    class Item:
+        velocity, amplitude, frequency, phase = (0.0, 0.0), (0.0, 0.0), 0.0, 0.0
+        path = ((0.0, 0.0, 0.0), (0.5, 0.1, 0.0), (1.0, 0.1, 0.05), (2.0, -0.1, 0.0))
+    m = Motion.of(Item)
+    assert isinstance(m, Path)
+    # it passes through every row, and rests before the first and after the last
+    for t, x, y in Item.path:
+        assert np.array_equal(m.displacement(t)[:2], [x, y])
+    assert np.array_equal(m.displacement(-1.0), np.zeros(3)) and np.array_equal(m.displacement(9.0), [-0.1, 0, 0])
+    assert not m.wall_velocity(-1.0).any() and not m.wall_velocity(9.0).any() and not m.wall_acceleration(9.0).any()
+    # its velocity and acceleration are its derivatives (off the rows), the velocity continuous at them
+    h = 1e-6
+    for t in (0.1, 0.37, 0.8, 1.5, 1.999):
+        dv = (m.displacement(t + h) - m.displacement(t - h)) / (2 * h)
+        da = (m.wall_velocity(t + h) - m.wall_velocity(t - h)) / (2 * h)
+        assert np.allclose(dv, m.wall_velocity(t), rtol=0, atol=1e-8)
+        assert np.allclose(da, m.wall_acceleration(t), rtol=0, atol=1e-5)
+    for t, *_ in Item.path:
+        assert np.allclose(m.wall_velocity(t - 1e-9), m.wall_velocity(t + 1e-9), rtol=0, atol=1e-6)
+    # it never leaves the table's range between rows (monotone), and the speed bound holds
+    ts = np.linspace(0.0, 2.0, 20001)
+    X = np.array([m.displacement(t) for t in ts])
+    assert X[:, 0].max() <= 0.1 + 1e-15 and X[:, 0].min() >= -0.1 - 1e-15 and X[:, 1].min() >= -1e-15
+    speed = max(np.linalg.norm(m.wall_velocity(t)) for t in ts)
+    assert speed <= m.largest_speed() <= 1.5 * speed
+
+
+@pytest.mark.fast
+def test_a_sphere_on_a_path_follows_it_with_the_same_bits_on_two_peers(tmp_path):
+    # Given the dam break with a sphere moved by a table (no velocity or oscillation keys)
+    text = (CONFIGS / "dam_break_2d.toml").read_text() + """
+[[obstacles]]
+shape = "sphere"
+center = [0.1, 0.2]
+radius = 0.05
+path = [[0.0, 0.0, 0.0], [0.002, 0.002, 0.001], [0.004, 0.006, 0.0]]
+"""
+    path = tmp_path / "path.toml"
+    path.write_text(text)
+    scene = load_scene(path, ["particles.spacing=0.02"])
+    # When it runs 40 steps in one process and on two peers
+    one = Simulation(scene, "f64")
+    for _ in range(40):
+        one.step()
+    cluster = InProcessCluster(scene, 2, "f64")
+    for _ in range(40):
+        cluster.step()
+    # Then the sphere is where the path puts it at the walls' time, and both runs have the same bits
+    w = one.model.walls
+    q = len(w.kind) - 1
+    motion = Motion.of(scene.obstacles[0])
+    assert np.allclose(w.data[q, :2], np.array([0.1, 0.2]) + motion.displacement(w.t)[:2], rtol=0, atol=1e-15)
+    assert w.t == one.t and 0.002 < one.t
+    reference, got = one.final_arrays(), cluster.final_arrays()
+    for key in ("id", "x", "v", "rho"):
+        assert np.array_equal(reference[key], got[key]), key
+
+
+@pytest.mark.fast
 def test_walls_move_to_a_time_and_stay_the_same_walls(tmp_path):
     # Given the dam break with a moving sphere
     sim = Simulation(moving_sphere_scene(tmp_path), "f64")
@@ -84,6 +146,20 @@ def test_walls_move_to_a_time_and_stay_the_same_walls(tmp_path):
     ("frequency = 2.0\n", "obstacles[0].frequency = 2.0: an oscillation needs a non-zero obstacles[0].amplitude"),
     ("velocity = [1.0, 0.0, 0.5]\n", "obstacles[0].velocity = [1.0, 0.0, 0.5]: z must be 0 in 2D"),
     ("frequency = -1.0\n", "obstacles[0].frequency"),
+    ("path = [[0.0, 0.0, 0.0], [1.0, 0.1, 0.0]]\nvelocity = [1.0, 0.0]\n",
+     "obstacles[0].path: give a wall either a path or velocity / amplitude / frequency, not both"),
+    ("path = [[0.0, 0.0, 0.0]]\n", "obstacles[0].path = [[0.0, 0.0, 0.0]]: a path needs at least 2 rows"),
+    ("path = [[0.0, 0.0, 0.0], [1.0, 0.1]]\n", "obstacles[0].path[1] = [1.0, 0.1]: expected 3 numbers, [t, x, y]"),
+    ("path = [[0.0, 0.0, 0.0], [1.0, 0.1, 0.0], [1.0, 0.2, 0.0]]\n",
+     "obstacles[0].path[2] = [1.0, 0.2, 0.0]: times must increase (the row before is at t = 1 s)"),
+    ("path = [[0.0, 0.1, 0.0], [1.0, 0.2, 0.0]]\n", "obstacles[0].path[0] = [0.0, 0.1, 0.0]: the first row's displacement"
+     " must be 0"),
+    ("path = [[-1.0, 0.0, 0.0], [1.0, 0.2, 0.0]]\n", "obstacles[0].path[0] = [-1.0, 0.0, 0.0]: the first time must be >= 0"),
+    ("path = [[0.0, 0.0, 0.0], [1.0, 'far', 0.0]]\n", "obstacles[0].path[1] = [1.0, 'far', 0.0]: expected a row of "
+     "finite numbers"),
+    ("path = [[0.0, 0.0, 0.0], [1.0e-6, 1.0, 0.0]]\n", "obstacles[0].path: the wall moves at up to"),
+    ("path = [[0.0, 0.0, 0.0], [1.0, 0.1, 0.0]]\ndensity = 500.0\n", "a floating body is moved by the fluid; give it "
+     "no obstacles[0].velocity, obstacles[0].amplitude or obstacles[0].path"),
 ])
 def test_a_bad_motion_is_refused_with_the_key_and_the_value(tmp_path, extra, message):
     text = (CONFIGS / "dam_break_2d.toml").read_text() + '[[obstacles]]\nshape = "sphere"\ncenter = [0.7, 0.1]\n' + extra
