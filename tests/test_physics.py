@@ -96,6 +96,7 @@ def test_lattice_at_rest_in_a_box_sees_rest_density_at_walls_edges_and_corners(d
     assert np.abs(s.a[:n]).max() < 1e-8
 
 
+@pytest.mark.slow  # 1.2 s of settling; the default tier has sph validate hydrostatic --quick (test_validate)
 def test_hydrostatic_column_settles_to_rho_g_depth():
     # Given still water 0.5 m deep with gravity ramped in over 0.4 s (coarse lattice for speed)
     sim = Simulation(scene("hydrostatic_2d", "particles.spacing=0.02"), "f64")

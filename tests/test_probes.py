@@ -242,6 +242,7 @@ def test_a_resumed_run_neither_doubles_nor_loses_rows(tmp_path):
 
 
 # -- validation: the hydrostatic tank --------------------------------------------------------------
+@pytest.mark.slow  # a validation case (minutes): the slow tier; the probes' sampling is tested above
 def test_the_hydrostatic_tank_measured_by_its_probes_passes(tmp_path, capsys):
     assert main(["validate", "hydrostatic_probes", "--quick", "--out", str(tmp_path)]) == 0
     lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("hydrostatic_probes.")]
