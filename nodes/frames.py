@@ -136,8 +136,9 @@ class FrameMaker:
         return self.every > 0 and sim.step_index % self.every == 0
 
     def surface_due(self, sim) -> bool:
-        """Whether this frame carries the live surface (the same frames on every peer)."""
-        return self.lattice is not None and (sim.step_index // self.every) % self.surface_every == 0
+        """Whether this frame carries the live surface (the same frames on every peer): the first frame
+        after step 0 and every surface_every-th after it, so the surface shows from the start."""
+        return self.lattice is not None and (sim.step_index // self.every - 1) % self.surface_every == 0
 
     def make(self, sim, bytes_sent: int = 0):
         """(framelet, stats, points, surface) of this peer's owned particles now; points: (positions
