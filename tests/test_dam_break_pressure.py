@@ -28,9 +28,10 @@ def test_the_buchner_records_load_as_copied():
     # the largest values: P1's second impact (t* 5.83) and P2's hump (t* 5.59)
     assert p1.max() == 0.87672 and t1[np.argmax(p1)] == 5.83288
     assert p2.max() == 0.235722 and t2[np.argmax(p2)] == 5.59126
-    # and the first-impact windows lie inside the records
+    # and the first-impact windows lie inside the records (P1's starts at t* 2.0, 0.025 before its
+    # first sample: the measure holds that sample's -0.018 over the gap, 0.05 % of the impulse)
     for sensor, (lo, hi) in PRESSURE_WINDOWS.items():
-        assert data[sensor][0][0] <= lo < hi <= data[sensor][0][-1]
+        assert data[sensor][0][0] - 0.03 <= lo < hi <= data[sensor][0][-1]
 
 
 def test_the_moving_average_keeps_constants_and_lines_and_smooths_noise():
