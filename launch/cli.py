@@ -355,11 +355,12 @@ def build_parser() -> argparse.ArgumentParser:
                     "Moyce, taylor_green, "
                     "oscillating_drop vs Monaghan & Rafiee, poiseuille and couette vs Morris et al., floating_box vs "
                     "Archimedes, hydrostatic_probes: the tank's [[probes]] vs rho0 g (H0 - y) and the fill height, "
-                    "cavity: the lid-driven cavity vs Ghia et al. 1982), print one line "
+                    "cavity: the lid-driven cavity vs Ghia et al. 1982, dam_break_pressure: wall pressure vs "
+                    "Buchner 2002), print one line "
                     "per metric (name value tolerance PASS|FAIL) and write a plot per case.")
     validate.add_argument("cases", nargs="*", metavar="CASE",
                           help="hydrostatic, hydrostatic_3d, dam_break, dam_break_3d, taylor_green, oscillating_drop, "
-                               "poiseuille, couette, floating_box, hydrostatic_probes, cavity")
+                               "poiseuille, couette, floating_box, hydrostatic_probes, cavity, dam_break_pressure")
     validate.add_argument("--all", action="store_true", help="every case")
     validate.add_argument("--quick", action="store_true", help="coarser resolution: under ~2 minutes per case")
     validate.add_argument("--out", type=Path, default=Path("runs/validate"), help="folder for the plots")

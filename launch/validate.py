@@ -3,7 +3,8 @@ case, exit code 1 if any metric fails.
 
     sph validate CASE [--quick] [--out DIR]      CASE: hydrostatic, hydrostatic_3d, dam_break, dam_break_3d,
                                                        taylor_green, oscillating_drop, poiseuille, couette,
-                                                       floating_box, hydrostatic_probes, cavity
+                                                       floating_box, hydrostatic_probes, cavity,
+                                                       dam_break_pressure
     sph validate --all [--quick]
 
 Each case is a function of (quick, out folder) returning its metrics; ``--quick`` uses a coarser
@@ -805,10 +806,143 @@ def hydrostatic_probes(quick: bool, out: Path, backend: str = "cpu", opts: CaseO
     return metrics
 
 
+# Buchner (2002) wall pressure in the 2D dam break (configs/dam_break_pressure_2d.toml): the digitised
+# experiment, copied from TrixiParticles.jl (the file's header names the source)
+BUCHNER_DATA = Path(__file__).resolve().parent / "data" / "buchner_2002_pressure.csv"
+# Each sensor's first-impact window in t* = t sqrt(g / H), fixed from the experiment's record alone:
+# P1 from before the surge arrives (t* 2.47) over the impact peak (2.77) and the relaxation to the
+# plateau, ending before the second rise (5.3, the plunging jet's return); P2 over its one hump
+# (rise from 4.6, peak 5.6, back to ~0 by 6.3) from the first recorded sample
+PRESSURE_WINDOWS = {"P1": (2.0, 4.0), "P2": (3.1, 7.0)}
+PRESSURE_TOLERANCE = 0.15  # the issue's target for peak and impulse, each sensor
+# The labelled filter: a centred moving average of the probe signal over 10 ms (t* 0.040), the first
+# zero of its response at 100 Hz; it removes the weakly compressible fluid's acoustic noise
+# (c0 / H_support ~ 1 kHz at H / 40) and keeps the impact's rise (~50 ms in the experiment at P1)
+PRESSURE_FILTER_S = 0.010
+# The run's end: the last window's end (the experiment's records go on to t* 7.30 and 7.52). Run to
+# t* 7.5, the full resolution (H / 80) stopped at t* 7.497 on run.max_density_ratio (rho/rho0 4.12,
+# docs/VALIDATION.md): after both windows, so it changes no metric, but the run must finish to report
+PRESSURE_END_T_STAR = 7.0
+
+
+def load_buchner(path: Path = BUCHNER_DATA) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The experiment's records: {sensor: (t*, p*)}, t* = t sqrt(g / H), p* = p / (rho g H), each in
+    increasing t*."""
+    lines = [line for line in Path(path).read_text().splitlines() if line.strip() and not line.startswith("#")]
+    if lines[0] != "sensor,t_star,p_star":
+        raise ValueError(f"{path}: header {lines[0]!r}, expected 'sensor,t_star,p_star'")
+    columns = {}
+    for line in lines[1:]:
+        sensor, t, p = line.split(",")
+        columns.setdefault(sensor, []).append((float(t), float(p)))
+    data = {}
+    for sensor, rows in sorted(columns.items()):
+        t, p = np.array(rows).T
+        order = np.argsort(t, kind="stable")
+        data[sensor] = (t[order], p[order])
+    return data
+
+
+def moving_average(t, p, window: float) -> np.ndarray:
+    """Centred moving average of a signal sampled at increasing (possibly uneven) times t over
+    ``window`` (same unit as t): the mean of the piecewise linear signal over [t - w/2, t + w/2],
+    the interval cut to the record at its ends."""
+    t, p = np.asarray(t, dtype=float), np.asarray(p, dtype=float)
+    integral = np.concatenate([[0.0], np.cumsum(0.5 * (p[1:] + p[:-1]) * np.diff(t))])
+    lo, hi = np.maximum(t - 0.5 * window, t[0]), np.minimum(t + 0.5 * window, t[-1])
+    span = hi - lo
+    mean = (np.interp(hi, t, integral) - np.interp(lo, t, integral)) / np.where(span > 0.0, span, 1.0)
+    return np.where(span > 0.0, mean, p)
+
+
+def peak_and_impulse(t, p, lo: float, hi: float) -> tuple[float, float, float]:
+    """(largest p, time of it, integral of the piecewise linear p over [lo, hi]) of a signal at
+    increasing times t."""
+    t, p = np.asarray(t, dtype=float), np.asarray(p, dtype=float)
+    inside = (t > lo) & (t < hi)
+    tt = np.concatenate([[lo], t[inside], [hi]])
+    pp = np.concatenate([[np.interp(lo, t, p)], p[inside], [np.interp(hi, t, p)]])
+    k = int(np.argmax(pp))
+    return float(pp[k]), float(tt[k]), float(np.sum(0.5 * (pp[1:] + pp[:-1]) * np.diff(tt)))
+
+
+def dam_break_pressure(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions | None = None) -> list[Metric]:
+    """The 2D dam break of Buchner's experiment (2H x H column, H = 0.6 m): the wall pressure probes
+    P1 and P2 against the measured records, peak and impulse over each sensor's first-impact window
+    (PRESSURE_WINDOWS), of the raw probe signal (sampled every step) and, separately, of its
+    PRESSURE_FILTER_S moving average."""
+    opts = opts or CaseOptions(backend)
+    dx = opts.dx or (0.015 if quick else 0.0075)
+    scene = load_scene(CONFIGS / "dam_break_pressure_2d.toml", [f"particles.spacing={dx}", *opts.overrides])
+    dx = scene.particles.spacing
+    H = scene.fluid.blocks[0].max[1] - scene.fluid.blocks[0].min[1]
+    rho0, g = scene.fluid.rest_density, abs(scene.forces.gravity[1])
+    t_scale, p_scale = math.sqrt(g / H), rho0 * g * H
+    data = load_buchner()
+    sim = Simulation(scene, opts.precision, opts.backend)
+    names = sim.probes.names
+    t_end = PRESSURE_END_T_STAR / t_scale
+    clock = _Clock(sim, opts, "dam_break_pressure", t_end)
+    times, values = [0.0], [np.zeros(len(names))]
+    while sim.t < t_end:
+        sim.step(dt_cap=t_end - sim.t)
+        clock.tick()
+        for step, t, v in sim.probes.take_samples():
+            times.append(t)
+            values.append(np.asarray(v, dtype=float))
+    clock.done()
+    t_star = np.asarray(times) * t_scale
+    raw = {n: np.array([v[k] for v in values]) / p_scale for k, n in enumerate(names)}
+    filtered = {n: moving_average(t_star, raw[n], PRESSURE_FILTER_S * t_scale) for n in names}
+    metrics, shown = [], []
+    for sensor in ("P1", "P2"):
+        lo, hi = PRESSURE_WINDOWS[sensor]
+        t_exp, p_exp = data[sensor]
+        peak_exp, when_exp, impulse_exp = peak_and_impulse(t_exp, p_exp, lo, hi)
+        for label, signal in (("raw", raw[sensor]), ("filtered", filtered[sensor])):
+            peak, when, impulse = peak_and_impulse(t_star, signal, lo, hi)
+            shown.append(f"{sensor} {label}: peak {peak:.3f} at t* {when:.3f}, impulse {impulse:.3f}")
+            where = f"t* {lo:g}-{hi:g}" + ("" if label == "raw" else f", {1e3 * PRESSURE_FILTER_S:g} ms moving average")
+            metrics.append(Metric(f"dam_break_pressure.{sensor}_peak_{label}_relative", abs(peak / peak_exp - 1.0),
+                                  PRESSURE_TOLERANCE,
+                                  f"p*/(rho g H) {peak:.3f} at t* {when:.2f} vs Buchner {peak_exp:.3f} at "
+                                  f"{when_exp:.2f}; {where}"))
+            metrics.append(Metric(f"dam_break_pressure.{sensor}_impulse_{label}_relative",
+                                  abs(impulse / impulse_exp - 1.0), PRESSURE_TOLERANCE,
+                                  f"integral of p* dt* {impulse:.4f} vs Buchner {impulse_exp:.4f}; {where}"
+                                  + (f"; {sim.n_particles} particles, H / {H / dx:.0f}" if label == "raw" else "")))
+    log.info("dam_break_pressure: %s", "; ".join(shown))
+    opts.stats.update(pressure_t_star=t_star.tolist(), pressure_raw={n: raw[n].tolist() for n in names})
+    if not opts.plot:
+        return metrics
+    plt = _plot()
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
+    for ax, sensor in zip(axes, ("P1", "P2")):
+        lo, hi = PRESSURE_WINDOWS[sensor]
+        ax.axvspan(lo, hi, color="0.93", label="first-impact window (metrics)")
+        ax.plot(t_star, raw[sensor], "-", lw=0.5, color="C0", alpha=0.6, label="sphfluid, raw probe (every step)")
+        ax.plot(t_star, filtered[sensor], "-", lw=1.4, color="C3",
+                label=f"sphfluid, {1e3 * PRESSURE_FILTER_S:g} ms moving average")
+        ax.plot(*data[sensor], "k^", ms=4, mfc="none", label="Buchner 2002 (experiment)")
+        ax.set_xlim(2.0, PRESSURE_END_T_STAR)
+        top = max(1.2 * float(np.max(data[sensor][1])), 1.1 * float(np.max(filtered[sensor][t_star >= 2.0])))
+        ax.set_ylim(-0.1 * top, top)
+        ax.set_xlabel("t* = t sqrt(g / H)")
+        ax.set_ylabel("p / (rho g H)")
+        ax.set_title(f"{sensor}, y = {scene.probes[names.index(sensor)].at[1]:g} m on the downstream wall")
+        ax.legend(fontsize=7, loc="upper left")
+    fig.suptitle(f"2D dam break wall pressure, H / {H / dx:.0f} ({sim.n_particles:,} particles), "
+                 f"c0 = {scene.sph.sound_speed:g} m/s")
+    fig.tight_layout()
+    fig.savefig(out / "dam_break_pressure.png", dpi=100)
+    plt.close(fig)
+    return metrics
+
+
 CASES = {"hydrostatic": hydrostatic, "hydrostatic_3d": hydrostatic_3d, "dam_break": dam_break, "dam_break_3d": dam_break_3d,
          "taylor_green": taylor_green, "oscillating_drop": oscillating_drop, "poiseuille": poiseuille,
          "couette": couette, "floating_box": floating_box, "hydrostatic_probes": hydrostatic_probes,
-         "cavity": cavity}
+         "cavity": cavity, "dam_break_pressure": dam_break_pressure}
 
 
 def run_validate(names: list[str], quick: bool, out: Path, backend: str = "cpu", overrides: tuple = ()) -> int:
