@@ -8,14 +8,14 @@ not all arrive within ``frame_timeout`` seconds (or before a later frame complet
 from what arrived and marked (``composite/status``).
 
 The viewer never waits for Rerun either. Complete frames go into a short queue that one writer
-thread composites, encodes and logs; when the queue is full (Rerun's channel to a slow live viewer
-blocks the writer, or compositing cannot keep up) the oldest waiting frame is dropped and counted
-(``stats/dropped_frames``, summary.json's viewer section), so what is shown stays close to the
-simulation instead of falling ever further behind. The recording file and live viewers are separate
-streams (nodes/rerun_sinks.Streams): a live viewer that is slow or stopped reading loses frames
-(the newest is sent, at most ``--live-fps`` per second) but never holds up the file. The control
-commands a dropped frame carried are logged with the next frame. Images are compressed: the composite's RGB as JPEG (quality
-``RGB_QUALITY``), each peer's framelet as JPEG (``PEER_QUALITY``), the depth as a 16-bit PNG
+thread composites, encodes and logs; when the queue is full (compositing and encoding cannot keep
+up) the oldest waiting frame is dropped and counted (``stats/dropped_frames``, summary.json's viewer
+section), so what is shown stays close to the simulation instead of falling ever further behind.
+The recording file and live viewers are separate streams (nodes/rerun_sinks.Streams): a live viewer
+that is slow or stopped reading loses frames (the newest is sent, at most ``--live-fps`` per second)
+but never holds up the file or the writer. The control commands a dropped frame carried are logged
+with the next frame. Images are compressed: the composite's RGB as JPEG (quality ``RGB_QUALITY``),
+each peer's framelet as JPEG (``PEER_QUALITY``), the depth as a 16-bit PNG
 (lossless, depth quantised to 1/60000 of the frame's farthest sample).
 
 A blueprint (``blueprint()``) is sent first: the composite large with its RGB visible and its depth
@@ -612,13 +612,11 @@ SURFACE_COLOUR = [90, 160, 230, 255]  # the live surface: water blue (the points
 
 
 def surface_normals(mesh) -> np.ndarray:
-    """Unit normals at the mesh's vertices pointing out of the fluid (down the colour field), so
-    that Rerun shades the surface; from the field's gradient the contour filter computed."""
-    n = mesh.point_data.get("Normals")
-    if n is None:
-        mesh = mesh.compute_normals(auto_orient_normals=False, split_vertices=False)
-        n = mesh.point_data["Normals"]
-    return np.asarray(n, dtype=np.float32)
+    """Unit normals at the mesh's vertices, so that Rerun shades the surface (unlit without them).
+    They follow the triangles' winding, which flying edges keeps consistent and outward on a closed
+    surface (tests/test_live_surface.py checks that they point out of the fluid)."""
+    mesh = mesh.compute_normals(auto_orient_normals=False, split_vertices=False)
+    return np.asarray(mesh.point_data["Normals"], dtype=np.float32)
 
 
 # -- the wire side --------------------------------------------------------------------------------

@@ -1,6 +1,8 @@
 """Rerun destinations: a run records and streams at once; the web viewer listens on loopback only,
 on free ports (a named busy port is a clear error); replay serves a recording the same way."""
+import contextlib
 import json
+import signal
 import socket
 import subprocess
 import sys
@@ -34,22 +36,34 @@ def frames(rrd: Path) -> dict:
     return images(rrd)
 
 
-def test_a_run_records_and_streams_to_a_running_viewer_at_once(tmp_path):
-    # Given a headless Rerun receiver saving what it gets
+@contextlib.contextmanager
+def receiver(rrd: Path):
+    """A headless Rerun receiver saving what it gets to ``rrd``: yields (process, its gRPC URL);
+    killed at the end (a stopped one too)."""
     port = free_ports(1)[0]
-    receiver = subprocess.Popen([rerun_executable(), "--save", str(tmp_path / "live.rrd"), "--port", str(port)],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen([rerun_executable(), "--save", str(rrd), "--port", str(port)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         time.sleep(2.0)
+        yield proc, f"rerun+http://127.0.0.1:{port}/proxy"
+    finally:
+        proc.terminate()
+        proc.send_signal(signal.SIGCONT)  # a stopped receiver handles the SIGTERM once it runs again
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout=10)
+
+
+def test_a_run_records_and_streams_to_a_running_viewer_at_once(tmp_path):
+    # Given a headless Rerun receiver saving what it gets
+    with receiver(tmp_path / "live.rrd") as (_, url):
         # When a run records to its folder and streams to the receiver
         done = subprocess.run([sys.executable, "-m", "launch.cli", "run", *TINY, "--out", str(tmp_path / "out"),
-                               "--connect", f"rerun+http://127.0.0.1:{port}/proxy", *LIVE_ALL], cwd=ROOT, capture_output=True,
-                              text=True, timeout=300)
+                               "--connect", url, *LIVE_ALL], cwd=ROOT, capture_output=True, text=True, timeout=300)
         assert done.returncode == 0, done.stderr
         time.sleep(1.0)
-    finally:
-        receiver.terminate()
-        receiver.wait(timeout=10)
     # Then the recording and the live stream hold the same frames, every one, and the blueprint
     from nodes.recording import blueprint, entity_steps
     recorded, live = frames(tmp_path / "out" / "run.rrd"), frames(tmp_path / "live.rrd")
@@ -233,21 +247,13 @@ def test_spawn_opens_the_native_viewer_or_says_why_it_cannot(tmp_path, monkeypat
 @pytest.mark.slow
 def test_a_run_streaming_to_a_stopped_viewer_records_every_frame(tmp_path):
     import os
-    import signal
     # Given a live receiver that stops reading (SIGSTOP) before the run starts
-    port = free_ports(1)[0]
-    receiver = subprocess.Popen([rerun_executable(), "--save", str(tmp_path / "live.rrd"), "--port", str(port)],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
-        time.sleep(2.0)
-        os.kill(receiver.pid, signal.SIGSTOP)
+    with receiver(tmp_path / "live.rrd") as (proc, url):
+        os.kill(proc.pid, signal.SIGSTOP)
         done = subprocess.run([sys.executable, "-m", "launch.cli", "run", "configs/dam_break.toml", "--set",
                                "particles.spacing=0.04", "--steps", "300", "--set", "render.every=10", "--quiet",
-                               "--out", str(tmp_path / "out"), "--connect", f"rerun+http://127.0.0.1:{port}/proxy"],
+                               "--out", str(tmp_path / "out"), "--connect", url],
                               cwd=ROOT, capture_output=True, text=True, timeout=300)
-    finally:
-        receiver.kill()
-        receiver.wait(timeout=10)
     # Then the run ends, its recording holds every frame, and summary.json says the live side stalled
     assert done.returncode == 0, done.stderr
     assert sorted(frames(tmp_path / "out" / "run.rrd")) == list(range(10, 301, 10))
