@@ -396,6 +396,8 @@ def drive(peer: PeerRun, plan: RunPlan, frames: FrameSink | None = None):
     if shown is not None:
         summary["viewer"] = shown
     if plan.out is not None:
+        if any(scene.origin):  # world coordinates, in float64: origin + x is exact there (scene_origin)
+            arrays = dict(arrays, x=arrays["x"].astype(np.float64) + np.array(scene.origin))
         write_outputs(plan.out, resolved_scene(scene, sim), arrays, summary)
     for q in range(1, world):
         endpoint.send(q, (step, "bye"), {})
@@ -609,6 +611,7 @@ def make_summary(sim: Simulation, scene: Scene, loop: dict, t_setup: float, wall
         "precision": sim.precision,
         "threads": numba.get_num_threads() if sim.backend == "cpu" else None,
         "dim": scene.dim,
+        "origin": list(scene.origin),
         "particle_steps_per_s": (sim.n_particles * loop["steps"] / loop["wall_s"]) if loop["wall_s"] > 0 else None,
         "loop": {"steps": loop["steps"], "wall_s": loop["wall_s"],
                  "note": "stepping loop only: excludes set-up and the first (compiling) step"},

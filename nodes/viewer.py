@@ -115,6 +115,8 @@ def info_text(scene, particles: int, world: int, changes=()) -> str:
         f"- time: {t.integrator}, {t.mode} dt (max {t.dt:g} s, CFL {t.cfl:g})",
         f"- colour: {scene.render.color_by}",
     ]
+    if any(scene.origin):  # sphcore.scene.scene_origin: positions in this recording are relative to it
+        lines.append(f"- coordinates: relative to the scene's origin {list(scene.origin)} m (world = origin + shown)")
     if changes:
         lines += ["", "## Changed during the run", ""] + [f"- step {step}: {text}" for step, text in changes]
     return "\n".join(lines)

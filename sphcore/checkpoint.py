@@ -155,7 +155,8 @@ def sim_info(sim) -> dict:
     return {"step": sim.step_index, "t": sim.t, "dt": sim.dt, "dt_prev": sim.dt_prev, "leaks": sim.leaks,
             "max_neighbours": sim.max_neighbours, "max_compression": sim.max_compression,
             "limit_counts": sim.limit_counts, "last_limit": sim.last_limit, "precision": sim.precision,
-            "particles": sim.n_particles, "bodies": [body.state() for body in sim.model.walls.bodies]}
+            "particles": sim.n_particles, "bodies": [body.state() for body in sim.model.walls.bodies],
+            "origin": list(sim.scene.origin)}
 
 
 def scene_digest(scene_dict: dict) -> str:
@@ -289,12 +290,16 @@ MANIFEST_SCHEMA = {
     "bodies": (lambda v: isinstance(v, list) and all(
         isinstance(b, list) and len(b) == 9 and all(_number(-math.inf)[0](c) for c in b) for b in v),
                "a list of floating bodies' [x, y, z, u, v, w, ax, ay, az] (finite numbers)"),
+    "origin": (lambda v: isinstance(v, list) and len(v) == 3 and all(_number(-math.inf)[0](c) for c in v),
+               "[x, y, z]: the origin of the positions (m, finite numbers)"),
     "scene": (lambda v: isinstance(v, dict), "an object (the resolved scene)"),
     "scene_sha256": (lambda v: isinstance(v, str) and bool(_HEX64.match(v)), "64 hexadecimal digits"),
 }
 
 
-OPTIONAL = ("bodies",)  # absent from the checkpoints of versions before floating bodies (and of scenes without)
+# absent from the checkpoints of versions before floating bodies (and of scenes without), and before
+# positions relative to the scene's origin (which then was the world's: scenes near it keep it)
+OPTIONAL = ("bodies", "origin")
 
 
 def _short(value, limit: int = 60) -> str:
@@ -394,6 +399,10 @@ def load(path: Path) -> Checkpoint:
 def restore(sim, ckpt: Checkpoint):
     """Put the checkpoint's particles and step state into a freshly built Simulation of its scene."""
     a, m = ckpt.arrays, ckpt.manifest
+    origin = [float(c) for c in m.get("origin", (0.0, 0.0, 0.0))]
+    if origin != list(sim.scene.origin):  # its positions are relative to another point than this run's
+        raise CheckpointError(f"{ckpt.path}: origin = {origin}: its positions are relative to that point, this "
+                              f"version runs its scene relative to {list(sim.scene.origin)}")
     if len(a["id"]) != sim.n_particles or not np.array_equal(a["id"], np.sort(sim.state.id)):
         raise CheckpointError(f"{ckpt.path}: its particles do not match its scene (the checkpoint holds "
                               f"{len(a['id'])} particles, the scene makes {sim.n_particles}"

@@ -72,9 +72,11 @@ def check_probes_inside(scene: Scene, walls: Walls):
     pts = np.array([p.at for p in scene.probes], dtype=np.float64)
     for i in np.nonzero(_outside_domain(walls, scene, pts, scene.particles.spacing))[0]:
         p = scene.probes[i]
-        lo = [round(float(v), 6) for v in walls.lo[: scene.dim]]
-        hi = [round(float(v), 6) for v in walls.hi[: scene.dim]]
-        raise SceneError(f"probes[{i}].at = {list(p.at[: scene.dim])!r}: outside the domain (probe {p.name!r}); "
+        o = scene.origin  # the scene file's (world) coordinates, not the run's
+        lo = [round(float(v + c), 6) for v, c in zip(walls.lo[: scene.dim], o)]
+        hi = [round(float(v + c), 6) for v, c in zip(walls.hi[: scene.dim], o)]
+        at = [v + c for v, c in zip(p.at[: scene.dim], o)]
+        raise SceneError(f"probes[{i}].at = {at!r}: outside the domain (probe {p.name!r}); "
                          f"its walls bound it within {lo} .. {hi}")
 
 

@@ -35,7 +35,8 @@ def write_summary(path: Path, summary: dict):
 
 
 def write_final(path: Path, arrays: dict):
-    """final.npz: id (n,) int64, x (n,3), v (n,3), rho (n,), rows sorted by id."""
+    """final.npz: id (n,) int64, x (n,3), v (n,3), rho (n,), rows sorted by id (x in world
+    coordinates: float64 for a scene run relative to its own origin, sphcore.scene.scene_origin)."""
     _atomic_write(path, lambda f: np.savez(f, **arrays))
 
 

@@ -123,6 +123,7 @@ class Probes:
         self.period = np.where(np.asarray(grid.period, dtype=np.float64) > 0.0,
                                np.asarray(grid.period, dtype=np.float64), 0.0)
         self.points = [np.array(p.at, dtype=np.float64) for p in self.items]
+        self.origin = scene.origin  # the points are relative to it; a height is reported in world coordinates
         self.e = vertical(scene)
         self.thresholds = [p.threshold or (DRY_FRACTION if p.kind == "pressure" else SURFACE_FRACTION)
                            for p in self.items]
@@ -222,7 +223,7 @@ class Probes:
             s = float(line[k])
             if k + 1 < len(line):  # the crossing between sample k (wet) and k + 1 (below the threshold)
                 s += float(line[k + 1] - line[k]) * (phi[k] - threshold) / (phi[k] - phi[k + 1])
-            base = float(point[0] * self.e[0] + point[1] * self.e[1] + point[2] * self.e[2])
+            base = float(sum((point[d] + self.origin[d]) * self.e[d] for d in range(3)))  # a world height
             values.append(base + s)
         return np.array(values, dtype=np.float64)
 

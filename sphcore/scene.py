@@ -28,12 +28,14 @@ class SceneError(ValueError):
 
 
 def spec(default, help: str, *, range: tuple | None = None, choices=None, min_exclusive: bool = False,
-         length: tuple | None = None, control: bool | str | None = None, rows: int | None = None):
-    """Declare a scene key: default, help text and constraints (checked by ``_check_value``), and
+         length: tuple | None = None, control: bool | str | None = None, rows: int | None = None,
+         position: bool = False):
+    """Declare a scene key: default, help text and constraints (checked by ``_check_value``),
     ``control``: LIVE if the key may change while the run goes on, else why not (None: the reason
-    of its section, ``SECTION_CONTROL``)."""
+    of its section, ``SECTION_CONTROL``), and ``position``: a point in world coordinates, which the
+    run holds relative to the scene's origin (``localised``)."""
     meta = {"help": help, "range": range, "choices": choices, "min_exclusive": min_exclusive, "length": length,
-            "control": control, "rows": rows}
+            "control": control, "rows": rows, "position": position}
     if isinstance(default, list):  # arrays of tables are held as tuples, exactly as _build stores them
         return field(default=tuple(default), metadata=meta)
     if isinstance(default, dict):
@@ -79,9 +81,9 @@ class Particles:
 @dataclass(frozen=True)
 class Block:
     shape: str = spec("box", "shape of the fluid region", choices=("box", "sphere"))
-    min: tuple = spec((0.0, 0.0, 0.0), "box: lower corner (m)", length=VEC)
-    max: tuple = spec((0.0, 0.0, 0.0), "box: upper corner (m)", length=VEC)
-    center: tuple = spec((0.0, 0.0, 0.0), "sphere: centre (m)", length=VEC)
+    min: tuple = spec((0.0, 0.0, 0.0), "box: lower corner (m)", length=VEC, position=True)
+    max: tuple = spec((0.0, 0.0, 0.0), "box: upper corner (m)", length=VEC, position=True)
+    center: tuple = spec((0.0, 0.0, 0.0), "sphere: centre (m)", length=VEC, position=True)
     radius: float = spec(0.0, "sphere: radius (m)", range=(0.0, math.inf))
     velocity: tuple = spec((0.0, 0.0, 0.0), "initial velocity (m/s)", length=VEC)
     frame: str = spec("world", "coordinates of min/max/center: world or the container's local frame",
@@ -99,7 +101,8 @@ class Fluid:
                              choices=("none", "taylor_green", "straining"), control=PARTICLES)
     flow_speed: float = spec(1.0, "taylor_green: velocity amplitude U (m/s)", range=(0.0, math.inf), control=PARTICLES)
     flow_rate: float = spec(0.0, "straining: the strain rate A (1/s)", range=(-math.inf, math.inf), control=PARTICLES)
-    flow_center: tuple = spec((0.0, 0.0, 0.0), "straining: the centre c of the flow (m)", length=VEC, control=PARTICLES)
+    flow_center: tuple = spec((0.0, 0.0, 0.0), "straining: the centre c of the flow (m)", length=VEC, control=PARTICLES,
+                              position=True)
     blocks: list = spec([], "regions filled with fluid on a lattice of the given spacing ([[fluid.blocks]])",
                         control=PARTICLES)
 
@@ -167,7 +170,8 @@ class Forces:
                             range=(0.0, 1.0e6), control=LIVE)
     central_omega: float = spec(0.0, "central force field a = -omega^2 (x - central_center) (1/s; 0 = off), e.g. "
                                 "the oscillating drop of Monaghan & Rafiee 2013", range=(0.0, 1.0e6), control=LIVE)
-    central_center: tuple = spec((0.0, 0.0, 0.0), "centre of the central force field (m)", length=VEC, control=LIVE)
+    central_center: tuple = spec((0.0, 0.0, 0.0), "centre of the central force field (m)", length=VEC, control=LIVE,
+                                  position=True)
 
 
 @dataclass(frozen=True)
@@ -204,7 +208,7 @@ _PLANE_MOTION, _OBSTACLE_MOTION = _motion("plane"), _motion("obstacle")
 
 @dataclass(frozen=True)
 class Plane:
-    point: tuple = spec((0.0, 0.0, 0.0), "a point on the plane at t = 0 (m)", length=VEC)
+    point: tuple = spec((0.0, 0.0, 0.0), "a point on the plane at t = 0 (m)", length=VEC, position=True)
     normal: tuple = spec((0.0, 1.0, 0.0), "normal pointing into the fluid", length=VEC)
     velocity: tuple = _PLANE_MOTION["velocity"]
     amplitude: tuple = _PLANE_MOTION["amplitude"]
@@ -217,7 +221,7 @@ class Plane:
 class Domain:
     container: str = spec("box", "container shape (none: only planes / periodic axes bound the fluid)",
                           choices=("box", "sphere", "cylinder", "none"))
-    center: tuple = spec((0.0, 0.0, 0.0), "container centre (m)", length=VEC)
+    center: tuple = spec((0.0, 0.0, 0.0), "container centre (m)", length=VEC, position=True)
     size: tuple = spec((1.0, 1.0, 1.0), "box: edge lengths; cylinder: (diameter, height, -) (m)", length=VEC)
     radius: float = spec(0.5, "sphere: radius (m)", range=(0.0, math.inf), min_exclusive=True)
     rotation: tuple = spec((0.0, 0.0, 0.0), "container rotation about x, y, z (degrees, applied x then y then z)",
@@ -226,16 +230,16 @@ class Domain:
                         min_exclusive=True)
     periodic: tuple = spec((False, False, False), "periodic axes (box container, no rotation)", length=VEC)
     bounds_min: tuple = spec((0.0, 0.0, 0.0), "container = none: lower corner of the simulated region (m)",
-                             length=VEC)
+                             length=VEC, position=True)
     bounds_max: tuple = spec((0.0, 0.0, 0.0), "container = none: upper corner of the simulated region (m)",
-                             length=VEC)
+                             length=VEC, position=True)
     planes: list = spec([], "extra planar walls ([[domain.planes]])")
 
 
 @dataclass(frozen=True)
 class Obstacle:
     shape: str = spec("sphere", "obstacle shape", choices=("sphere", "box", "mesh"))
-    center: tuple = spec((0.0, 0.0, 0.0), "centre (m)", length=VEC)
+    center: tuple = spec((0.0, 0.0, 0.0), "centre (m)", length=VEC, position=True)
     file: str = spec("", "mesh: triangle mesh (STL, OBJ, PLY), relative to the scene file; centred on its bounds")
     scale: float = spec(1.0, "mesh: uniform scale", range=(0.0, math.inf), min_exclusive=True)
     radius: float = spec(0.1, "sphere: radius (m)", range=(0.0, math.inf), min_exclusive=True)
@@ -304,8 +308,8 @@ class DecompositionSection:
 @dataclass(frozen=True)
 class RenderCamera:
     name: str = spec("camera", "name used to switch to this camera (render.camera, the control channel)")
-    eye: tuple = spec((1.0, 1.0, 2.0), "camera position (m)", length=(3,))
-    target: tuple = spec((0.0, 0.0, 0.0), "point looked at (m)", length=(3,))
+    eye: tuple = spec((1.0, 1.0, 2.0), "camera position (m)", length=(3,), position=True)
+    target: tuple = spec((0.0, 0.0, 0.0), "point looked at (m)", length=(3,), position=True)
     up: tuple = spec((0.0, 1.0, 0.0), "up direction", length=(3,))
     fov: float = spec(40.0, "vertical field of view (degrees)", range=(1.0, 170.0))
 
@@ -365,7 +369,7 @@ class Probe:
                                  "(m, along the vertical, against gravity) on the vertical line through at",
                      choices=PROBE_KINDS)
     at: tuple = spec((0.0, 0.0, 0.0), "pressure: the point; height: a point of the vertical line (m, inside the "
-                                      "domain; required)", length=VEC)
+                                      "domain; required)", length=VEC, position=True)
     threshold: float = spec(0.0, "fluid fraction sum_j (m_j/rho_j) W: pressure: dry (reads 0 Pa) below it; height: "
                                  "the surface is where it falls below it (0 = the kind's default: 0.05 for pressure, "
                                  "0.5 for height)", range=(0.0, 1.0), min_exclusive=False)
@@ -403,18 +407,22 @@ class Scene:
     output: Output = Output()
     probes: tuple = ()
     source: str = ""
+    # where the run's coordinates start, in world coordinates (m): every position key holds
+    # world - origin (``localised``); not a key, it follows from the domain
+    origin: tuple = (0.0, 0.0, 0.0)
 
     @property
     def dim(self) -> int:
         return self.scene.dim
 
     def to_dict(self) -> dict:
-        """Plain dict (TOML-serialisable) of every resolved key."""
+        """Plain dict (TOML-serialisable) of every resolved key, positions in world coordinates."""
+        world = shifted(self, self.origin) if any(self.origin) else self
         out = {}
-        for f in dataclasses.fields(self):
-            if f.name == "source":
+        for f in dataclasses.fields(world):
+            if f.name in ("source", "origin"):
                 continue
-            val = getattr(self, f.name)
+            val = getattr(world, f.name)
             out[f.name] = [_plain(o) for o in val] if isinstance(val, tuple) else _plain(val)
         return out
 
@@ -705,7 +713,52 @@ def scene_from_dict(data: dict, source: str = "") -> Scene:
         else:
             parts[name] = _build(cls, data.get(name, {}), name)
     scene = Scene(**parts, source=source)
-    return _check_combinations(_pad_vectors(scene))
+    return localised(_check_combinations(_pad_vectors(scene)))
+
+
+def scene_origin(s: Scene) -> tuple:
+    """The origin of a run's coordinates (m): (0, 0, 0) for a domain within twice its size Q of the
+    world's origin (every scene of configs/, whose results therefore stay as they were), else the
+    domain's centre rounded down to a multiple of Q, a power of two at least as large as the domain's
+    largest edge (down: a tank in [0, L] moved by a multiple of Q gets exactly that multiple). float32 keeps ~7 significant digits of a coordinate, so a scene 1e6 m away would
+    lose all of them below 0.06 m: relative to this origin it computes exactly what the same scene
+    computes at the world's origin, and x - origin is exact in float64 (the origin is a multiple of
+    Q, coarser than the ulp of any coordinate of the domain)."""
+    dom = s.domain
+    centre = ([(lo + hi) / 2 for lo, hi in zip(dom.bounds_min, dom.bounds_max)] if dom.container == "none"
+              else list(dom.center))
+    Q = 2.0 ** math.ceil(math.log2(max(max(_domain_extent(s)), 1e-300)))
+    return tuple(0.0 if abs(c) <= 2 * Q else Q * math.floor(c / Q) for c in centre)
+
+
+def shifted(s: Scene, offset) -> Scene:
+    """``s`` with every position key (``spec(position=True)``) moved by ``offset`` (m) and its origin
+    by -offset, so that origin + position stays where it was; a block's or obstacle's coordinates in
+    the container's frame move with the container and are left alone."""
+    offset = tuple(float(o) for o in offset)
+
+    def move(obj):
+        if getattr(obj, "frame", "world") != "world":
+            return obj
+        changes = {}
+        for f in dataclasses.fields(obj):
+            val = getattr(obj, f.name)
+            if f.metadata.get("position"):
+                changes[f.name] = tuple(v + o for v, o in zip(val, offset))
+            elif isinstance(val, tuple) and val and dataclasses.is_dataclass(val[0]):
+                changes[f.name] = tuple(move(o) for o in val)
+        return dataclasses.replace(obj, **changes) if changes else obj
+
+    new = {name: tuple(move(o) for o in val) if isinstance(val, tuple) else move(val)
+           for name in SECTIONS for val in [getattr(s, name)]}
+    return dataclasses.replace(s, **new, origin=tuple(o - d for o, d in zip(s.origin, offset)))
+
+
+def localised(s: Scene) -> Scene:
+    """``s`` in its run's coordinates: positions relative to ``scene_origin`` (``s`` itself when
+    that is the world's origin). Idempotent: a localised scene's own origin is (0, 0, 0)."""
+    o = scene_origin(s)
+    return shifted(s, tuple(-c for c in o)) if any(o) else s
 
 
 def _pad(vec: tuple, fill=0.0) -> tuple:
@@ -1172,6 +1225,8 @@ def live_change(scene: Scene, text: str) -> tuple[str, Scene]:
         if scene.dim == 3:
             raise SceneError(f"{key} = {list(checked)!r}: a 3D scene needs 3 components")
         checked = _pad(checked)
+    if f.metadata.get("position"):  # given in world coordinates, held relative to the run's origin
+        checked = tuple(c - o for c, o in zip(checked, scene.origin))
     section = getattr(scene, where)
     if getattr(section, f.name) == checked:
         return key, scene

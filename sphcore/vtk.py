@@ -41,7 +41,8 @@ class VtkWriter:
         self.folder.mkdir(parents=True, exist_ok=True)
         s = sim.state
         n = s.n_owned
-        cloud = pv.PolyData(np.ascontiguousarray(s.x[:n], dtype=np.float64))
+        origin = np.array(sim.scene.origin)  # world coordinates, in float64: exact, unlike float32 far away
+        cloud = pv.PolyData(np.ascontiguousarray(s.x[:n], dtype=np.float64) + origin)
         cloud.point_data["id"] = s.id[:n]
         cloud.point_data["velocity"] = np.ascontiguousarray(sim.synchronised_velocity()[:n])
         cloud.point_data["density"] = s.rho[:n]
@@ -64,7 +65,10 @@ class VtkWriter:
         s = sim.state
         vol = s.m / np.where(s.rho > 0, s.rho, sim.prm.rho0)
         field, origin = colour_field(s.x, vol, lo, hi, step, int(sim.kernel), sim.H, self.scene.dim)
-        return iso_surface(field, origin, step)
+        mesh = iso_surface(field, origin, step)
+        if any(sim.scene.origin) and mesh.n_points:  # to world coordinates, in float64 (the contour's are float32)
+            mesh.points = mesh.points.astype(np.float64) + np.array(sim.scene.origin)
+        return mesh
 
     def write_collections(self):
         kinds = ["particles"] + (["surface"] if self.surface else [])
