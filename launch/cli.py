@@ -530,6 +530,10 @@ def _cmd_scene(args) -> int:
              f"  file          {scene.source} ({scene.dim}D){' with --set ' + ' '.join(args.overrides) if args.overrides else ''}"]
     for i, (block, n) in enumerate(zip(scene.fluid.blocks, report["blocks"])):
         lines.append(f"  fluid.blocks[{i}] {block.shape:6s} {n} particles{' (clip = true)' if block.clip else ''}")
+    for i, inlet in enumerate(report["inlets"]):
+        lines.append(f"  inlets[{i}]     {inlet['per_layer'] * inlet['layers']} particles ({inlet['layers']} layers of "
+                     f"{inlet['per_layer']}, replacing the blocks' there; a new layer every "
+                     f"{inlet['layer_every_s']:.3g} s)")
     lines += [
         f"  particles     {report['particles']} (spacing {dx:g} m, at most {scene.particles.max_particles})",
         f"  memory        about {size_text(report['memory'])} of arrays in one process ({report['cells']:.3g} grid "

@@ -939,10 +939,86 @@ def dam_break_pressure(quick: bool, out: Path, backend: str = "cpu", opts: CaseO
     return metrics
 
 
+def channel_velocity(y, U: float, D: float):
+    """Plane Poiseuille flow of mean velocity U between plates at y = 0 and y = D."""
+    return 6.0 * U * (y / D) * (1.0 - y / D)
+
+
+def channel(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions | None = None) -> list[Metric]:
+    """Developing channel flow between a velocity inlet and a pressure outlet (configs/channel_2d.toml,
+    Re = 10): from 2.5 D downstream of the inlet (the laminar entry length is ~(0.6 + 0.05 Re) D),
+    the time-averaged velocity profile against plane Poiseuille's parabola, the section's flux
+    against the inlet's U D, and the outlets' removals against the inlet's additions over the
+    averaging window (a steady state neither fills nor drains the channel)."""
+    opts = opts or CaseOptions(backend)
+    scene = load_scene(CONFIGS / "channel_2d.toml", [*(() if opts.dx is None and quick else
+                                                       (f"particles.spacing={opts.dx or 2.5e-4}",)), *opts.overrides])
+    bottom, top = scene.domain.planes
+    D, U, dx = top.point[1] - bottom.point[1], scene.inlets[0].velocity[0], scene.particles.spacing
+    x_lo, x_hi = 2.5 * D, scene.outlets[0].min[0] - scene.sph.support * dx  # clear of the outlet's support
+    t_avg, t_end, every = 4.0, 6.0, 0.05   # 6 s: the fluid has crossed the channel once
+    sim = Simulation(scene, opts.precision, opts.backend)
+    clock = _Clock(sim, opts, "channel", t_end)
+    bins = 10
+    u_sum, exact_sum, count = np.zeros(bins), np.zeros(bins), np.zeros(bins)
+    fluxes, counts_at = [], {}
+    t_next = t_avg
+    while sim.t < t_end - 1e-12:
+        sim.step(dt_cap=min(t_next, t_end) - sim.t)
+        clock.tick()
+        if sim.t < t_next - 1e-12:
+            continue
+        counts_at[round(sim.t, 6)] = (sim.open.inflow, sim.open.outflow)
+        t_next += every
+        s = sim.state
+        n = s.n_owned
+        x, u = s.x[:n].astype(np.float64), sim.synchronised_velocity()[:n, 0].astype(np.float64)
+        sel = (x[:, 0] >= x_lo) & (x[:, 0] < x_hi)
+        y = x[sel, 1] - bottom.point[1]
+        k = np.clip((y / D * bins).astype(int), 0, bins - 1)
+        np.add.at(u_sum, k, u[sel])
+        np.add.at(exact_sum, k, channel_velocity(y, U, D))
+        np.add.at(count, k, 1.0)
+        volume = (s.m[:n] / s.rho[:n]).astype(np.float64)[sel]
+        fluxes.append(float(np.sum(u[sel] * volume)) / (x_hi - x_lo))
+    clock.done()
+    u_mean, u_exact = u_sum / np.maximum(count, 1), exact_sum / np.maximum(count, 1)
+    u_max = 1.5 * U
+    rms = float(np.sqrt(np.mean((u_mean - u_exact) ** 2))) / u_max
+    flux = float(np.mean(fluxes)) / (U * D)
+    (in0, out0), (in1, out1) = counts_at[min(counts_at)], counts_at[max(counts_at)]
+    balance = abs((out1 - out0) - (in1 - in0)) / max(in1 - in0, 1)
+    window = f"t = {t_avg:g}..{t_end:g} s, x = {x_lo / D:.2f}..{x_hi / D:.2f} D, {round(D / dx)} across"
+    metrics = [Metric("channel.profile_rms_of_u_max", rms, 0.03, f"{bins} bins across, {window}"),
+               Metric("channel.flux_error_of_U_D", abs(flux - 1.0), 0.02, f"flux {flux:.4f} U D, {window}"),
+               Metric("channel.outflow_minus_inflow", balance, 0.02,
+                      f"{in1 - in0} particles in, {out1 - out0} out over t = {t_avg:g}..{t_end:g} s")]
+    if not opts.plot:
+        return metrics
+    plt = _plot()
+    fig, ax = plt.subplots(figsize=(6, 4))
+    yy = np.linspace(0.0, D, 200)
+    ax.plot(yy / D, channel_velocity(yy, U, D) / U, "-", color="k", lw=1, label="plane Poiseuille")
+    ax.plot((np.arange(bins) + 0.5) / bins, u_mean / U, "o", color="C0", label=f"sphfluid, {window}")
+    s = sim.state
+    n = s.n_owned
+    near = s.x[:n, 0] < scene.inlets[0].max[0] + 0.5 * D
+    ax.plot((s.x[:n, 1][near] - bottom.point[1]) / D, sim.synchronised_velocity()[:n, 0][near] / U, ".", ms=2,
+            color="C1", label="particles within D / 2 of the inlet, last step")
+    ax.set_xlabel("y / D")
+    ax.set_ylabel("u / U")
+    ax.legend(fontsize=7)
+    ax.set_title("Developing channel flow, Re = 10: inlet plug to parabola")
+    fig.tight_layout()
+    fig.savefig(out / "channel.png", dpi=100)
+    plt.close(fig)
+    return metrics
+
+
 CASES = {"hydrostatic": hydrostatic, "hydrostatic_3d": hydrostatic_3d, "dam_break": dam_break, "dam_break_3d": dam_break_3d,
          "taylor_green": taylor_green, "oscillating_drop": oscillating_drop, "poiseuille": poiseuille,
          "couette": couette, "floating_box": floating_box, "hydrostatic_probes": hydrostatic_probes,
-         "cavity": cavity, "dam_break_pressure": dam_break_pressure}
+         "cavity": cavity, "dam_break_pressure": dam_break_pressure, "channel": channel}
 
 
 def run_validate(names: list[str], quick: bool, out: Path, backend: str = "cpu", overrides: tuple = ()) -> int:

@@ -629,6 +629,7 @@ def make_summary(sim: Simulation, scene: Scene, loop: dict, t_setup: float, wall
         "max_compression": sim.max_compression,
         "kinetic_energy": sim.kinetic_energy(),
         "health": sim.health.summary(),
+        **({"open_boundaries": sim.open.summary()} if sim.open.active else {}),
         "bodies": [{"obstacle": b.wall - sim.model.walls.container_walls - len(scene.domain.planes), "mass": b.mass,
                     "displacement": [float(c) for c in b.x], "velocity": [float(c) for c in b.v],
                     "force": [float(c) for c in b.force]} for b in sim.model.walls.bodies],

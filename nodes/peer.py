@@ -372,9 +372,9 @@ def _final_check(sim: Simulation, q: int, own: dict, parts: list, peers: list):
         n, dtype = len(ids), sim.dtype
         expect_arrays(msg, {"id": ((n,), np.int64), "x": ((n, 3), dtype), "v": ((n, 3), dtype), "rho": ((n,), dtype),
                             "stats": (msg["stats"].shape, np.uint8)}, what)
-        if n and (ids.min() < 0 or ids.max() >= sim.n_particles or len(np.unique(ids)) != n
+        if n and (not sim.ids_valid(ids) or len(np.unique(ids)) != n
                   or any(np.isin(ids, p["id"]).any() for p in parts)):
-            raise Reject("ids", f"{what}: ids outside 0..{sim.n_particles - 1}, repeated, or reported by another peer")
+            raise Reject("ids", f"{what}: ids outside {sim.ids_text()}, repeated, or reported by another peer")
         stats = _json_of(msg["stats"], f"{what}: statistics")
         if not (isinstance(stats, dict) and set(stats) == set(own) and stats["rank"] == q
                 and stats["particles_final"] == n

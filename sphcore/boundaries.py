@@ -18,6 +18,7 @@ import numpy as np
 from sphcore.choices import Kernel, WallKind
 from sphcore.motion import FloatingBody, Motion
 from sphcore.physics.kernels import dw_dr, kernel_constants, w
+from sphcore.physics.open_boundary import ZONE_COLUMNS, ZONE_FAR, ZONE_INLET, ZONE_NONE, ZONE_OUTLET
 from sphcore.scene import Scene
 
 
@@ -42,6 +43,7 @@ class Walls:
     motion: np.ndarray      # (nw, 6) float: each wall's velocity (m/s) and acceleration (m/s^2) now
     moves: tuple = ()       # (wall row, motion.Motion or motion.FloatingBody) of the walls that move
     rest: np.ndarray | None = None  # (nw, 16+) float64: the rows at t = 0
+    zones: np.ndarray | None = None  # (nz, 10) float: inlet and outlet zones (physics/open_boundary.py)
     t: float = math.nan     # the time the rows and motion are at (s); none yet: moved before the first step
 
     # what changes as the walls move: not the walls' definition (Simulation's _same compares the rest)
@@ -83,6 +85,18 @@ def container_frame(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     """(centre, R) of the container: local coordinates map to centre + R @ local."""
     dom = scene.domain
     return np.array(dom.center, dtype=float), rotation_matrix(dom.rotation)
+
+
+def zone_rows(scene: Scene, dtype) -> np.ndarray:
+    """The [[inlets]] and [[outlets]] as wall_zones rows (physics/open_boundary.py); one padding row
+    (kind 0) when there are none, so that every backend has an array to pass."""
+    rows = []
+    for kind, zones in ((ZONE_INLET, scene.inlets), (ZONE_OUTLET, scene.outlets)):
+        for z in zones:
+            lo = [z.min[d] if d < scene.dim else -ZONE_FAR for d in range(3)]
+            hi = [z.max[d] if d < scene.dim else ZONE_FAR for d in range(3)]
+            rows.append([kind, *lo, *hi, *(z.velocity if kind == ZONE_INLET else (z.pressure, 0.0, 0.0))])
+    return np.array(rows or [[ZONE_NONE] + [0.0] * (ZONE_COLUMNS - 1)], dtype=dtype).reshape(-1, ZONE_COLUMNS)
 
 
 def build_walls(scene: Scene, kernel: Kernel, H: float, dtype) -> Walls:
@@ -165,6 +179,7 @@ def build_walls(scene: Scene, kernel: Kernel, H: float, dtype) -> Walls:
         motion=np.zeros((len(kinds), 6), dtype=dtype),
         moves=tuple((q, m) for q, m in moving if m is not None),
         rest=_pad_rows(rows, np.float64),
+        zones=zone_rows(scene, dtype),
     )
 
 

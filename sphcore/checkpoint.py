@@ -396,6 +396,21 @@ def load(path: Path) -> Checkpoint:
     return Checkpoint(folder, manifest, arrays)
 
 
+def _restore_open(sim, ckpt: Checkpoint):
+    """A scene with inlets or outlets: the checkpoint's ids must be ones its particles can have at its
+    time (sorted, unique); the count and the inflow / outflow totals follow (open_boundary.py)."""
+    ids, t = ckpt.arrays["id"], float(ckpt.manifest["t"])
+    op = sim.open
+    made = op.created(t)
+    valid = op.ids_valid(ids, t) and bool(np.all(np.diff(ids) > 0))
+    if not valid or len(ids) > op.n_initial + made:
+        raise CheckpointError(f"{ckpt.path}: its particle ids are not those its scene's blocks and inlets make by t = "
+                              f"{t:.6g} s (or are repeated)")
+    sim.n_particles = len(ids)
+    op.inflow = made - op.created(0.0)
+    op.outflow = op.n_initial + made - len(ids)
+
+
 def restore(sim, ckpt: Checkpoint):
     """Put the checkpoint's particles and step state into a freshly built Simulation of its scene."""
     a, m = ckpt.arrays, ckpt.manifest
@@ -403,7 +418,9 @@ def restore(sim, ckpt: Checkpoint):
     if origin != list(sim.scene.origin):  # its positions are relative to another point than this run's
         raise CheckpointError(f"{ckpt.path}: origin = {origin}: its positions are relative to that point, this "
                               f"version runs its scene relative to {list(sim.scene.origin)}")
-    if len(a["id"]) != sim.n_particles or not np.array_equal(a["id"], np.sort(sim.state.id)):
+    if sim.open.active:  # inlets and outlets: the particles at the checkpoint's time, not the scene's initial ones
+        _restore_open(sim, ckpt)
+    elif len(a["id"]) != sim.n_particles or not np.array_equal(a["id"], np.sort(sim.state.id)):
         raise CheckpointError(f"{ckpt.path}: its particles do not match its scene (the checkpoint holds "
                               f"{len(a['id'])} particles, the scene makes {sim.n_particles}"
                               f"{'' if len(a['id']) != sim.n_particles else ' with other ids'})")

@@ -102,6 +102,10 @@ class NullHalo:
         return value
         yield
 
+    def owns(self, sim, x):
+        """Which of the points x (n, 3) lie in this process's block: all."""
+        return np.ones(len(x), dtype=bool)
+
     def reduce_sums(self, sim, phase, values, step=None):
         return np.asarray(values, dtype=np.int64)
         yield
@@ -180,8 +184,8 @@ class PeerHalo:
             expect_arrays(msg, carried_layout(n, dtype, self._extra_shapes), what)
             if not (msg["m"] > 0).all():
                 raise Reject("mass", f"{what}: a mass m <= 0")
-            if n and (ids.min() < 0 or ids.max() >= sim.n_particles or len(np.unique(ids)) != n):
-                raise Reject("ids", f"{what}: ids outside 0..{sim.n_particles - 1} or repeated")
+            if n and (not sim.ids_valid(ids) or len(np.unique(ids)) != n):
+                raise Reject("ids", f"{what}: ids this run's particles cannot have ({sim.ids_text()}), or repeated")
             cells = sim.grid.cells_of(msg["x"])
             if not placed(cells).all():
                 raise Reject("owner", f"{what}: particles outside the cells the protocol sends them from")
@@ -320,6 +324,10 @@ class PeerHalo:
             rows = where[lo:hi]
             for k, a in arrays.items():
                 a[rows] = msg[k]
+
+    def owns(self, sim, x):
+        """Which of the points x (n, 3) lie in this peer's block (the cells it owns)."""
+        return self.dec.owner(sim.grid.cells_of(x)) == self.rank
 
     def reduce_sum(self, sim, phase, value: int):
         """Global sum of an integer (exact, so every peer gets the same total in any order); the

@@ -135,6 +135,8 @@ class Health:
             return "off: terms.vorticity_confinement > 0 adds energy by design"
         if self.sim.model.walls.moves:
             return "off: moving walls do work on the fluid (the scene is not closed)"
+        if scene.inlets or scene.outlets:
+            return "off: inlets and outlets carry energy in and out (the scene is not closed)"
         body = np.add(scene.forces.gravity, scene.forces.external)
         periodic = scene.domain.periodic
         for axis in range(len(periodic)):

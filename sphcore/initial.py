@@ -170,6 +170,14 @@ def scene_report(scene: Scene) -> dict:
     check_probes_inside(scene, walls)
     counts = [len(x) for x, _ in filled]
     n = sum(counts)
+    inlets = []
+    if scene.inlets or scene.outlets:  # the inlets fill themselves, replacing the blocks' particles there
+        from sphcore.open_boundary import OpenBoundaries
+        ob = OpenBoundaries(scene, walls)
+        x = np.concatenate([x for x, _ in filled])
+        n = len(ob.initial(np.arange(len(x)), x, np.zeros_like(x))[0])
+        inlets = [{"per_layer": len(lat.nodes), "layers": lat.K0, "layer_every_s": lat.dx / lat.U}
+                  for lat in ob.inlets]
     est = resource_estimate(scene)
     vmax = max(float(np.sqrt((v**2).sum(axis=1)).max()) for _, v in filled)
     if scene.fluid.initial_flow == "taylor_green":
@@ -179,6 +187,6 @@ def scene_report(scene: Scene) -> dict:
     c0 = 0.0 if scene.sph.solver == "dfsph" else scene.sph.sound_speed
     dt, limit = choose_dt(scene.time.mode, scene.time.dt, scene.time.cfl, 0.5 * H, c0, vmax, amax, nu,
                           scene.terms.shifting)
-    return {"blocks": counts, "particles": n, "cells": est["cells"],
+    return {"blocks": counts, "inlets": inlets, "particles": n, "cells": est["cells"],
             "memory": n * BYTES_PER_PARTICLE + est["cells"] * BYTES_PER_CELL,
             "neighbours": lattice_neighbours(scene.sph.support, scene.dim), "dt": dt, "dt_limit": limit}

@@ -375,18 +375,45 @@ class Probe:
                                  "0.5 for height)", range=(0.0, 1.0), min_exclusive=False)
 
 
+OPEN = "creates or removes particles where the run's particle bookkeeping fixes it when the run starts"
+
+
+@dataclass(frozen=True)
+class Inlet:
+    min: tuple = spec((0.0, 0.0, 0.0), "the inlet zone, a box: lower corner (m); it fills itself with a lattice of "
+                                       "the spacing that moves at velocity", length=VEC, position=True)
+    max: tuple = spec((0.0, 0.0, 0.0), "the inlet zone: upper corner (m); at least the support radius thick along "
+                                       "velocity", length=VEC, position=True)
+    velocity: tuple = spec((0.0, 0.0, 0.0), "the inflow velocity (m/s), along one axis: particles in the zone move "
+                                            "at it, new layers enter at its back face and become fluid past its "
+                                            "front face", length=VEC)
+
+
+@dataclass(frozen=True)
+class Outlet:
+    min: tuple = spec((0.0, 0.0, 0.0), "the outlet zone, a box: lower corner (m); particles in it move on with the "
+                                       "velocity they came with", length=VEC, position=True)
+    max: tuple = spec((0.0, 0.0, 0.0), "the outlet zone: upper corner (m); at least the support radius thick along "
+                                       "direction", length=VEC, position=True)
+    direction: tuple = spec((1.0, 0.0, 0.0), "the outward axis (a unit vector along x, y or z): particles past the "
+                                             "zone's face along it are removed", length=VEC)
+    pressure: float = spec(0.0, "the pressure in the zone (Pa, gauge: the EOS's p = 0 at rest density); the flow "
+                                "leaves against it", range=(-math.inf, math.inf))
+
+
 SECTIONS: dict[str, type] = {
     "scene": SceneInfo, "particles": Particles, "fluid": Fluid, "sph": SPH, "terms": Terms, "forces": Forces,
     "time": Time, "domain": Domain, "obstacles": Obstacle, "boundary": Boundary, "run": Run,
     "decomposition": DecompositionSection, "render": Render, "output": Output, "probes": Probe,
+    "inlets": Inlet, "outlets": Outlet,
 }
 LIST_ITEMS: dict[str, type] = {"fluid.blocks": Block, "domain.planes": Plane, "obstacles": Obstacle,
-                               "render.cameras": RenderCamera, "probes": Probe}
+                               "render.cameras": RenderCamera, "probes": Probe, "inlets": Inlet, "outlets": Outlet}
 # why the keys of a section (or of an array of tables) declared without ``control`` cannot change
 # during a run
 SECTION_CONTROL = {"scene": AT_START, "domain": WORLD, "obstacles": WORLD, "decomposition": PEERS,
                    "render": VIEWER, "output": OUTPUT, "fluid.blocks": PARTICLES, "domain.planes": WORLD,
-                   "render.cameras": VIEWER, "probes": PROBES}
+                   "render.cameras": VIEWER, "probes": PROBES, "inlets": OPEN, "outlets": OPEN}
 
 
 @dataclass(frozen=True)
@@ -406,6 +433,8 @@ class Scene:
     render: Render = Render()
     output: Output = Output()
     probes: tuple = ()
+    inlets: tuple = ()
+    outlets: tuple = ()
     source: str = ""
     # where the run's coordinates start, in world coordinates (m): every position key holds
     # world - origin (``localised``); not a key, it follows from the domain
@@ -710,6 +739,8 @@ def scene_from_dict(data: dict, source: str = "") -> Scene:
             parts[name] = tuple(_build(Obstacle, o, f"obstacles[{i}]") for i, o in enumerate(raw))
         elif name == "probes":
             parts[name] = _build_probes(data.get("probes", []))
+        elif name in ("inlets", "outlets"):
+            parts[name] = _build_zones(cls, name, data.get(name, []))
         else:
             parts[name] = _build(cls, data.get(name, {}), name)
     scene = Scene(**parts, source=source)
@@ -930,6 +961,7 @@ def _check_combinations(s: Scene, files: bool = True) -> Scene:
     if s.time.mode == "fixed" and s.time.integrator == "leapfrog" and s.time.dt <= 0:
         raise SceneError(f"time.dt = {s.time.dt!r}: must be positive")
     _check_probes(s)
+    _check_open_boundaries(s)
     if files:
         _check_resources(s)
     return s
@@ -1023,6 +1055,69 @@ def _build_probes(raw) -> tuple:
                                  "name = \"p1\", at = [0.5, 0.1])")
         probes.append(probe)
     return tuple(probes)
+
+
+def _build_zones(cls, name: str, raw) -> tuple:
+    """The [[inlets]] or [[outlets]] tables, min and max required."""
+    if not isinstance(raw, list):
+        raise SceneError(f"{name} = {_short(raw)}: expected an array of tables ([[{name}]])")
+    zones = []
+    for i, item in enumerate(raw):
+        zone = _build(cls, item, f"{name}[{i}]")
+        for key in ("min", "max"):
+            if key not in item:
+                raise SceneError(f"{name}[{i}]: no {key} given (each [[{name}]] needs min and max, the corners of its "
+                                 "zone)")
+        zones.append(zone)
+    return tuple(zones)
+
+
+def _axis_of(s: Scene, key: str, vec) -> int:
+    """The one axis ``vec`` lies along (an open boundary's flow), or SceneError."""
+    along = [d for d in range(s.dim) if vec[d] != 0.0]
+    if len(along) != 1 or any(vec[s.dim:]):
+        raise SceneError(f"{key} = {list(vec[: s.dim])!r}: must lie along one axis (one nonzero component; open "
+                         "boundaries are axis-aligned boxes)")
+    return along[0]
+
+
+def _check_open_boundaries(s: Scene):
+    """[[inlets]] and [[outlets]] (sphcore/open_boundary.py): boxes of the scene's dimension, along
+    one axis, at least a support radius thick along it (the fluid beside them needs its whole
+    support: a thinner zone leaves the nearest fluid short of neighbours), not overlapping each
+    other, with the weakly compressible solver."""
+    zones = [("inlets", i, z) for i, z in enumerate(s.inlets)] + [("outlets", i, z) for i, z in enumerate(s.outlets)]
+    if not zones:
+        return
+    H = s.sph.support * s.particles.spacing
+    boxes = []
+    for name, i, z in zones:
+        key = f"{name}[{i}]"
+        if s.dim == 2 and (z.min[2] or z.max[2]):
+            raise SceneError(f"{key}: min and max z must be 0 in a 2D scene")
+        if any(z.max[d] <= z.min[d] for d in range(s.dim)):
+            raise SceneError(f"{key}.max = {list(z.max[: s.dim])!r}: must exceed {key}.min = {list(z.min[: s.dim])!r} "
+                             "on every axis")
+        vec_key, vec = (f"{key}.velocity", z.velocity) if name == "inlets" else (f"{key}.direction", z.direction)
+        axis = _axis_of(s, vec_key, vec)
+        if name == "outlets" and abs(vec[axis]) != 1.0:
+            raise SceneError(f"{vec_key} = {list(vec[: s.dim])!r}: must be a unit vector along one axis, e.g. [1, 0"
+                             f"{', 0' if s.dim == 3 else ''}]")
+        if name == "inlets" and abs(vec[axis]) >= 0.1 * s.sph.sound_speed:
+            raise SceneError(f"{vec_key} = {list(vec[: s.dim])!r}: at least 0.1 x sph.sound_speed = "
+                             f"{0.1 * s.sph.sound_speed:g} m/s; a weakly compressible fluid needs flows 10 x slower "
+                             "than sound (raise sph.sound_speed)")
+        thick = z.max[axis] - z.min[axis]
+        if thick < H * (1 - 1e-9):
+            raise SceneError(f"{key}: {thick:g} m thick along {'xyz'[axis]}, less than the support radius "
+                             f"sph.support x particles.spacing = {H:g} m (the fluid beside it would miss neighbours)")
+        for other_key, lo, hi in boxes:
+            if all(z.min[d] < hi[d] and lo[d] < z.max[d] for d in range(s.dim)):
+                raise SceneError(f"{key}: overlaps {other_key}")
+        boxes.append((key, z.min, z.max))
+    if s.sph.solver != "wcsph":
+        raise SceneError(f"{zones[0][0]}[{zones[0][1]}]: inlets and outlets need sph.solver = 'wcsph' (DFSPH's "
+                         "solves do not impose the zones' velocities)")
 
 
 def _check_probes(s: Scene):

@@ -20,6 +20,7 @@ from sphcore.health import Health
 from sphcore.initial import generate_particles
 from sphcore.model import Model
 from sphcore.motion import FloatingBody
+from sphcore.open_boundary import OpenBoundaries
 from sphcore.probes import Probes
 from sphcore.scene import Scene
 from sphcore.solvers import SOLVERS
@@ -95,8 +96,12 @@ class Simulation:
             self.device_name = cuda_backend.require(device)
         self.model = model = Model(scene, precision, backend)
         ids, x, v = generate_particles(scene, model.walls)
+        self.open = OpenBoundaries(scene, model.walls)  # inlets and outlets (open_boundary.py)
+        if self.open.active:
+            ids, x, v = self.open.initial(ids, x, v)
         self._state = ParticleState.create(ids, x, v, np.full(len(ids), model.mass), model.dtype)
-        self.n_particles = len(ids)
+        self.n_particles = len(ids)  # all peers' particles now (inlets add, outlets remove: open_boundary.py)
+        self.n_ids = self.open.n_initial if self.open.active else len(ids)  # the blocks' ids: 0 .. n_ids - 1
         self._add_extra(self._state)
         self.grid = model.host_grid
         self.solver = SOLVERS[scene.sph.solver](self)  # the pressure solver's hooks into the step (solvers.py)
@@ -164,6 +169,19 @@ class Simulation:
         self._state = new
         if self.backend == "cuda":
             self.engine.device_stale = True
+
+    def ids_valid(self, ids: np.ndarray) -> bool:
+        """Every id is one a particle of this run can have now (a wire or checkpoint check)."""
+        if self.open.inlets:
+            return self.open.ids_valid(ids, self.t)
+        return bool(len(ids) == 0 or (ids.min() >= 0 and ids.max() < self.n_ids))
+
+    def ids_text(self) -> str:
+        """The ids ``ids_valid`` accepts, in words."""
+        text = f"0..{self.n_ids - 1}"
+        for lat in self.open.inlets:
+            text += f", {lat.base}..{lat.base + len(lat.nodes) * lat.layers(self.t) - 1}"
+        return text
 
     def _add_extra(self, state: ParticleState):
         for name in self.extra_names:
@@ -289,6 +307,8 @@ class Simulation:
             self._run(st.XSPH, prm=prm)                            # x, v, rho        -> dv
         if self.use_shifting:
             self._run(st.SHIFTING, prm=prm)                        # x, v, m, rho     -> dv (+=)
+        if self.open.active:
+            self._run(st.OPEN_BOUNDARY)                            # inlets: v = U, a = 0; outlets: a = 0
         stats = self._run(st.STATISTICS, "timestep", rho0=self.prm.rho0)  # local max |v|, |a|, compression
         stats = yield from halo.reduce_max(self, stats)            # global max |v|, |a|, compression
         dt = self._choose_dt(dt_cap, stats)                        # -> dt (+ health check)
@@ -304,6 +324,9 @@ class Simulation:
                 self._check_body(body)
             self._move_walls(self.t + dt)                          # the collision guard: walls at t + dt
             self.leaks += int(e.run(st.BOUNDARIES, prm=prm))
+        if self.open.active:                                       # rows past outlets out, inlets' new layers in
+            with self.timers("open_boundaries"):
+                yield from self.open.after_step(self, halo, self.t, self.t + dt)
         self.dt_prev = dt
         self.dt = dt
         self.t += dt
@@ -351,6 +374,8 @@ class Simulation:
         found, most = self._run(st.DENSITY, prm=prm, dt_prev=self.dtype.type(self.dt_prev),  # x, m (v) -> rho, p,
                                 commit=bool(commit))               # fill; continuity: commit the carried rho
         self.neighbours_sum, self.neighbours_max = int(found), int(most)
+        if self.open.outlets:
+            self._run(st.OUTLET_PRESSURE, prm=prm)                 # outlets: rho = rho0, p = p_out
         self.max_neighbours = max(self.max_neighbours, self.neighbours_max)
         yield from self.solver.fields(halo, prm)                   # DFSPH: 1/D, g^wall, p = 0; rho_ref
         yield from self._exchange_fields(halo)                     # ghosts' rho, p   (exchange 2)
@@ -438,6 +463,8 @@ class Simulation:
         self._move_walls(self.t)
         yield from self._fields(halo, prm, commit=False)  # continuity: the next step applies the pending update
         yield from self._accelerations(halo, prm)
+        if self.open.active:
+            self._run(st.OPEN_BOUNDARY)
         yield from self.solver.refresh(halo, prm)  # DFSPH: the pressure the next step would solve for
 
     def _exchange_fields(self, halo):

@@ -34,6 +34,7 @@ from sphcore.physics.drag import drag_row
 from sphcore.physics.bodies import body_reaction_row
 from sphcore.physics.integration import boundaries_row, integrate_row, statistics_row
 from sphcore.physics.momentum import acceleration_row
+from sphcore.physics.open_boundary import open_boundary_row, outlet_pressure_row
 from sphcore.physics.shifting import shifting_row
 from sphcore.physics.surface_tension import surface_tension_row
 from sphcore.physics.vorticity import confinement_row, vorticity_row
@@ -82,6 +83,7 @@ ARGUMENTS = MappingProxyType({
     "wall_data": ("table", "wall primitive geometry rows (physics/walls.py)"),
     "wall_tables": ("table", "tabulated wall integrals (boundaries.py)"),
     "wall_motion": ("table", "each wall's velocity [0:3] (m/s) and acceleration [3:6] (m/s^2) now (motion.py)"),
+    "wall_zones": ("table", "inlet and outlet zones: [kind, lo (3), hi (3), U (3)] (physics/open_boundary.py)"),
     "lo": ("row", "the grid origin (3,) (m): periodic wrapping"),
     # per-step scalars the step passes
     "dt": ("float", "this step (s)"),
@@ -215,6 +217,8 @@ VORTICITY = Stage("vorticity", vorticity_row, writes=("omega",)).check()
 CONFINEMENT = Stage("confinement", confinement_row, writes=("a",)).check()
 XSPH = Stage("xsph", xsph_row, writes=("dv",)).check()
 SHIFTING = Stage("shifting", shifting_row, writes=("dv",)).check()
+OPEN_BOUNDARY = Stage("open_boundary", open_boundary_row, writes=("v", "a", "dv")).check()
+OUTLET_PRESSURE = Stage("outlet_pressure", outlet_pressure_row, writes=("rho", "p")).check()
 STATISTICS = Stage("statistics", statistics_row, writes=(),
                    reduce=("max", "max", "max", "sum")).check()  # max |v|^2, |a|^2, compression; bad rows
 DFSPH_KICK = Stage("dfsph_kick", dfsph_kick_row, writes=("v_star", "lam", "lam_sum")).check()
@@ -230,8 +234,8 @@ BODY_REACTION = Stage("body_reaction", body_reaction_row, writes=(), reduce=("su
 # Force terms: each adds to a after FORCES, in this order, when its scene key is > 0
 FORCE_TERMS = (SURFACE_TENSION, DRAG)
 
-STAGES = (DENSITY, DFSPH_FACTOR, FORCES, DIFFUSION, *FORCE_TERMS, VORTICITY, CONFINEMENT, XSPH, SHIFTING,
-          STATISTICS, DFSPH_KICK, DFSPH_SOURCE, DFSPH_UPDATE, DFSPH_FINISH, DENSITY_UPDATE, INTEGRATE, BOUNDARIES,
+STAGES = (DENSITY, OUTLET_PRESSURE, DFSPH_FACTOR, FORCES, DIFFUSION, *FORCE_TERMS, VORTICITY, CONFINEMENT, XSPH, SHIFTING,
+          OPEN_BOUNDARY, STATISTICS, DFSPH_KICK, DFSPH_SOURCE, DFSPH_UPDATE, DFSPH_FINISH, DENSITY_UPDATE, INTEGRATE, BOUNDARIES,
           BODY_REACTION)
 
 

@@ -132,6 +132,21 @@ class ParticleState:
         return ParticleState(**taken, n_owned=taken["id"].shape[0], extra=extra)
 
 
+def with_new_owned(state: ParticleState, keep, ids, x, v, m: float, rho0: float) -> ParticleState:
+    """``state`` with its owned rows filtered by ``keep`` (a boolean mask over them) and new owned rows
+    (ids, x, v; mass m, density rho0, pressure and every carried extra 0) after them, the ghost
+    rows kept behind them, unchanged (what follows the step, e.g. a frame's surface, still reads
+    them; the next step rebuilds them)."""
+    n = state.n_owned
+    fresh = ParticleState.create(ids, x, v, np.full(len(ids), m), state.dtype,
+                                 extra={k: np.zeros((len(ids),) + a.shape[1:]) for k, a in state.extra.items()})
+    fresh.rho[:] = rho0
+    parts = [state.take(np.nonzero(keep)[0]), fresh, state.take(np.arange(n, state.n))]
+    joined = {name: np.concatenate([getattr(p, name) for p in parts]) for name in FIELDS}
+    extra = {k: np.concatenate([p.extra[k] for p in parts]) for k in state.extra}
+    return ParticleState(**joined, n_owned=parts[0].n + parts[1].n, extra=extra)
+
+
 def merge_by_id(parts: list[dict], keys) -> dict:
     """Per-particle arrays of several parts (peers, checkpoint files) joined and sorted by id."""
     arrays = {k: np.concatenate([p[k] for p in parts]) for k in keys}

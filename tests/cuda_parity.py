@@ -126,6 +126,30 @@ def peers_case(sc, precision, steps) -> dict:
     return out
 
 
+def open_case(sc, precision, steps) -> dict:
+    """Inlets and outlets: the CPU runs to just before the inlet's next layer, the device continues
+    from its particles, and both step across that layer's creation and the outlet's removals."""
+    cpu = Simulation(sc, precision, "cpu")
+    lattice = cpu.open.inlets[0]
+    next_layer = (lattice.layers(0.0) - lattice.K0 + 0.5) * lattice.dx / lattice.U  # the first new layer's time
+    while cpu.t + 3.0 * max(cpu.dt, 1e-12) < next_layer:
+        cpu.step()
+    gpu = Simulation(sc, precision, "cuda")
+    copy_state(cpu, gpu)
+    gpu.n_particles, gpu.dt = cpu.n_particles, cpu.dt
+    gpu.open.inflow, gpu.open.outflow = cpu.open.inflow, cpu.open.outflow
+    before = cpu.n_particles, cpu.open.inflow, cpu.open.outflow
+    for _ in range(steps):
+        cpu.step()
+        gpu.step()
+    cpu.refresh()
+    gpu.refresh()
+    out = compare(cpu, gpu)
+    out["counts"] = [before, (cpu.n_particles, cpu.open.inflow, cpu.open.outflow),
+                     (gpu.n_particles, gpu.open.inflow, gpu.open.outflow)]
+    return out
+
+
 CASES = {
     "tiny_f64": lambda: stages_case(scene("tiny.toml"), "f64"),
     "tiny_f32": lambda: steps_case(scene("tiny.toml"), "f32", 3),
@@ -153,6 +177,8 @@ CASES = {
     # a floating body: its force, the reaction to its wall's terms, reduced on the device
     "floating_f64": lambda: steps_case(scene("floating_box_2d.toml", "particles.spacing=0.04",
                                              "forces.ramp_time=0.001"), "f64", 5),
+    # inlets and outlets (open_boundary.py): a layer enters, rows leave, on the device as on the CPU
+    "open_f64": lambda: open_case(scene("channel_2d.toml", "particles.spacing=1e-3"), "f64", 6),
     "walk_dfsph_peers_f64": lambda: peers_case(scene("tiny.toml", "run.neighbours='walk'", "sph.solver='dfsph'",
                                                      "time.dt=0.002"), "f64", 2),
 }

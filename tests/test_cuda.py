@@ -31,7 +31,7 @@ TOL = {"f64": {"x": 1e-12, "v": 1e-12, "rho": 1e-12, "p": 1e-12, "a": 1e-11},
 
 # The cases in two groups of about equal cost, run side by side (the suite's other tests wait for
 # this fixture, so the second core would otherwise idle through its ~3-5 minutes)
-GROUPS = (["dfsph_f64", "tiny_f64", "terms_f64", "obstacle_f64", "walk_terms_f64", "moving_walls_f64"],
+GROUPS = (["dfsph_f64", "tiny_f64", "terms_f64", "obstacle_f64", "walk_terms_f64", "moving_walls_f64", "open_f64"],
           ["dfsph_peers_f64", "tiny_f32", "periodic_f64", "peers_f64", "continuity_f64", "walk_dfsph_peers_f64",
            "floating_f64"])
 
@@ -94,6 +94,14 @@ def test_options_match_cpu(parity, case):
     body (where it moved to: body_x)."""
     _check(parity[case], "f64")
     assert parity[case].get("body_x", 0.0) <= TOL["f64"]["x"]
+
+
+def test_inlets_and_outlets_on_cuda_match_cpu(parity):
+    """A layer enters at the inlet and rows leave at the outlet within the compared steps, alike."""
+    r = parity["open_f64"]
+    before, cpu, gpu = (tuple(c) for c in r["counts"])
+    assert cpu == gpu and cpu[1] > before[1] and cpu[2] > before[2], r["counts"]
+    _check(r, "f64")
 
 
 @pytest.mark.parametrize("case", ["peers_f64", "dfsph_peers_f64", "walk_dfsph_peers_f64"])

@@ -442,6 +442,7 @@ class CudaStages(Engine):
                       "wall_data": cuda.to_device(np.ascontiguousarray(w.data)),
                       "wall_tables": cuda.to_device(np.ascontiguousarray(w.tables)),
                       "wall_motion": cuda.to_device(np.ascontiguousarray(w.motion)),
+                      "wall_zones": cuda.to_device(np.ascontiguousarray(w.zones)),
                       "lo": cuda.to_device(sim.model.lo)}
         # a stage's reduced values (stages.REDUCTIONS): the integer kinds, and the real maxima
         self.out = {"int64": cuda.device_array(MAX_REDUCED, dtype=np.int64),
