@@ -738,9 +738,10 @@ def scene_from_dict(data: dict, source: str = "") -> Scene:
                 raise SceneError(f"obstacles = {raw!r}: expected an array of tables ([[obstacles]])")
             parts[name] = tuple(_build(Obstacle, o, f"obstacles[{i}]") for i, o in enumerate(raw))
         elif name == "probes":
-            parts[name] = _build_probes(data.get("probes", []))
+            parts[name] = _build_tables(Probe, name, data.get(name, []), ("name", "at"),
+                                        ', e.g. name = "p1", at = [0.5, 0.1]')
         elif name in ("inlets", "outlets"):
-            parts[name] = _build_zones(cls, name, data.get(name, []))
+            parts[name] = _build_tables(cls, name, data.get(name, []), ("min", "max"), ", the corners of its zone")
         else:
             parts[name] = _build(cls, data.get(name, {}), name)
     scene = Scene(**parts, source=source)
@@ -1041,35 +1042,20 @@ def _check_floating(s, key: str, ob):
                          "(or density = 0 for a fixed obstacle)")
 
 
-def _build_probes(raw) -> tuple:
-    """The [[probes]] tables: each built like any table, and ``at`` required (a probe at a default
-    point would measure somewhere nobody asked for)."""
-    if not isinstance(raw, list):
-        raise SceneError(f"probes = {_short(raw)}: expected an array of tables ([[probes]])")
-    probes = []
-    for i, item in enumerate(raw):
-        probe = _build(Probe, item, f"probes[{i}]")
-        for name in ("name", "at"):
-            if name not in item:
-                raise SceneError(f"probes[{i}]: no {name} given (each [[probes]] needs name and at, e.g. "
-                                 "name = \"p1\", at = [0.5, 0.1])")
-        probes.append(probe)
-    return tuple(probes)
-
-
-def _build_zones(cls, name: str, raw) -> tuple:
-    """The [[inlets]] or [[outlets]] tables, min and max required."""
+def _build_tables(cls, name: str, raw, required: tuple, hint: str) -> tuple:
+    """An array of tables ([[probes]], [[inlets]], [[outlets]]): each built like any table, and the
+    ``required`` keys given (a probe at a default point would measure somewhere nobody asked for, a
+    zone at a default box would be nowhere)."""
     if not isinstance(raw, list):
         raise SceneError(f"{name} = {_short(raw)}: expected an array of tables ([[{name}]])")
-    zones = []
+    items = []
     for i, item in enumerate(raw):
-        zone = _build(cls, item, f"{name}[{i}]")
-        for key in ("min", "max"):
+        built = _build(cls, item, f"{name}[{i}]")
+        for key in required:
             if key not in item:
-                raise SceneError(f"{name}[{i}]: no {key} given (each [[{name}]] needs min and max, the corners of its "
-                                 "zone)")
-        zones.append(zone)
-    return tuple(zones)
+                raise SceneError(f"{name}[{i}]: no {key} given (each [[{name}]] needs {' and '.join(required)}{hint})")
+        items.append(built)
+    return tuple(items)
 
 
 def _axis_of(s: Scene, key: str, vec) -> int:

@@ -11,15 +11,14 @@ import pytest
 
 from launch.validate import CaseOptions, channel
 from nodes.cluster import InProcessCluster
-from nodes.driver import PeerRun, RunPlan, drive, run_blocking
-from nodes.transport import InProcessNetwork
+from nodes.driver import RunPlan
 from sphcore import checkpoint
-from sphcore.halo import NULL_HALO
 from sphcore.open_boundary import ID_STRIDE
 from sphcore.scene import SceneError, load_scene
 from sphcore.solver import Simulation
 
 from conftest import CONFIGS
+from test_steering import run_one
 
 CHANNEL = CONFIGS / "channel_2d.toml"
 ROOT = CONFIGS.parent
@@ -118,21 +117,13 @@ def test_two_and_three_peers_run_the_channel_as_one_process_bit_for_bit(tmp_path
             assert np.array_equal(final[1][k], final[peers][k]), (peers, k)
 
 
-def _run(sc, out, steps, checkpoint_every=None, resume=None):
-    sim = Simulation(sc, "f64")
-    if resume is not None:
-        checkpoint.restore(sim, resume)
-    peer = PeerRun(sim, sc, NULL_HALO, InProcessNetwork().endpoint(0))
-    return run_blocking(drive(peer, RunPlan(steps, out=out, checkpoint_every=checkpoint_every, progress=False)))
-
-
 @pytest.mark.fast
 def test_a_resumed_channel_run_equals_the_continuous_one(tmp_path):
     sc = load_scene(CHANNEL)
-    whole = _run(sc, tmp_path / "whole", 300)
-    _run(sc, tmp_path / "part", 150, checkpoint_every=150)
+    whole, _, _ = run_one(sc, tmp_path / "whole", 300)
+    run_one(sc, tmp_path / "part", 150, checkpoint_every=150)
     ckpt = checkpoint.load(tmp_path / "part" / "checkpoints")
-    resumed = _run(sc, tmp_path / "part", 300, resume=ckpt)
+    resumed, _, _ = run_one(sc, tmp_path / "part", 300, resume=ckpt)
     assert resumed["open_boundaries"] == whole["open_boundaries"] and resumed["particles"] == whole["particles"]
     a, b = (dict(np.load(tmp_path / d / "final.npz")) for d in ("whole", "part"))
     for k in ("id", "x", "v", "rho"):

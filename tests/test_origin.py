@@ -11,16 +11,15 @@ import pytest
 
 from launch.cli import main
 from nodes.cluster import InProcessCluster
-from nodes.driver import PeerRun, RunPlan, drive, run_blocking
-from nodes.transport import InProcessNetwork
+from nodes.driver import RunPlan
 from sphcore import checkpoint
 from sphcore.checkpoint import CheckpointError
-from sphcore.halo import NULL_HALO
 from sphcore.scene import live_change, load_scene, scene_toml, shifted
 from sphcore.solver import Simulation
 
 from conftest import CONFIGS
 from test_probes import DAM2D
+from test_steering import run_one
 
 # test_probes' probes, off the walls: at 1e6 m the walls' float64 coordinates carry 1e-10 m of
 # rounding, enough to put a probe written exactly on a wall outside it (and the run refuses that)
@@ -143,23 +142,14 @@ def test_the_vtk_series_is_in_world_coordinates_in_float64(tmp_path):
     assert len(s0) > 100 and np.allclose(s1 - (1.0e6, 0.0, -2.0e6), s0, rtol=0, atol=1e-6)
 
 
-def run_f32(sc, out, steps, checkpoint_every=None, resume=None) -> dict:
-    """``sc`` in one process through the run driver, in float32 (test_steering.run_one's f64 twin)."""
-    sim = Simulation(sc, "f32")
-    if resume is not None:
-        checkpoint.restore(sim, resume)
-    peer = PeerRun(sim, sc, NULL_HALO, InProcessNetwork().endpoint(0))
-    return run_blocking(drive(peer, RunPlan(steps, out=out, checkpoint_every=checkpoint_every, progress=False)))
-
-
 @pytest.mark.fast
 def test_a_far_run_resumes_to_the_continuous_run_and_a_checkpoint_of_another_origin_is_refused(tmp_path):
     far = load_scene(moved(dam(tmp_path), FAR, tmp_path / "far.toml"))
-    whole = run_f32(far, tmp_path / "whole", 40)
-    run_f32(far, tmp_path / "part", 20, checkpoint_every=20)
+    whole, _, _ = run_one(far, tmp_path / "whole", 40, precision="f32")
+    run_one(far, tmp_path / "part", 20, checkpoint_every=20, precision="f32")
     ckpt = checkpoint.load(tmp_path / "part" / "checkpoints")
     assert ckpt.manifest["origin"] == list(FAR)
-    resumed = run_f32(far, tmp_path / "part", 40, resume=ckpt)
+    resumed, _, _ = run_one(far, tmp_path / "part", 40, resume=ckpt, precision="f32")
     assert resumed["steps"] == whole["steps"] == 40
     a, b = (np.load(tmp_path / d / "final.npz") for d in ("whole", "part"))
     assert np.array_equal(a["x"], b["x"]) and np.array_equal(a["v"], b["v"])

@@ -54,9 +54,9 @@ def script_commands(endpoint, sim, script):
     return pending
 
 
-def run_one(sc, out, steps=STEPS, script=(), checkpoint_every=None, resume=None):
+def run_one(sc, out, steps=STEPS, script=(), checkpoint_every=None, resume=None, precision="f64"):
     """``sc`` in one process (peer 0 of 1) through the run driver; (summary, final.npz, acks)."""
-    sim = Simulation(sc, "f64")
+    sim = Simulation(sc, precision)
     if resume is not None:
         checkpoint.restore(sim, resume)
     endpoint = InProcessNetwork().endpoint(0)
