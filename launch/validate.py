@@ -1015,10 +1015,72 @@ def channel(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions | No
     return metrics
 
 
+def circular_couette_velocity(r, omega: float, r1: float, r2: float):
+    """Steady azimuthal velocity between a cylinder of radius r1 turning at omega and a fixed one of r2."""
+    A = -omega * r1 ** 2 / (r2 ** 2 - r1 ** 2)
+    B = omega * r1 ** 2 * r2 ** 2 / (r2 ** 2 - r1 ** 2)
+    return A * r + B / r
+
+
+def circular_couette(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions | None = None) -> list[Metric]:
+    """Circular Couette flow (configs/circular_couette_2d.toml): an inner cylinder turning (a rotating
+    obstacle, sphcore/motion.py) inside a fixed one, from rest to t = 3 s (30 x the slowest mode's
+    time constant (R2 - R1)^2 / (pi^2 nu)); the mean azimuthal velocity in 10 rings across the gap
+    against A r + B / r, in units of the rim speed Omega R1: the largest error over all rings, and
+    over the inner half (where the turning wall drives the flow)."""
+    opts = opts or CaseOptions(backend)
+    dx = opts.dx or (5.0e-5 if quick else 2.5e-5)
+    scene = load_scene(CONFIGS / "circular_couette_2d.toml", [f"particles.spacing={dx}", *opts.overrides])
+    inner = scene.obstacles[0]
+    omega, r1, r2 = math.radians(inner.angular_velocity[2]), inner.radius, scene.domain.radius
+    centre = np.array(inner.center)
+    sim = Simulation(scene, opts.precision, opts.backend)
+    t_end = 3.0
+    clock = _Clock(sim, opts, "circular_couette", t_end)
+    while sim.t < t_end - 1e-12:
+        sim.step(dt_cap=t_end - sim.t)
+        clock.tick()
+    clock.done()
+    n = sim.state.n_owned
+    rel = sim.state.x[:n].astype(np.float64) - centre
+    v = sim.synchronised_velocity()[:n].astype(np.float64)
+    r = np.hypot(rel[:, 0], rel[:, 1])
+    u = (rel[:, 0] * v[:, 1] - rel[:, 1] * v[:, 0]) / r
+    rings = 10
+    k = np.clip(((r - r1) / (r2 - r1) * rings).astype(int), 0, rings - 1)
+    U = omega * r1
+    mean = np.array([u[k == b].mean() for b in range(rings)])
+    exact = np.array([circular_couette_velocity(r[k == b], omega, r1, r2).mean() for b in range(rings)])
+    error = np.abs(mean - exact) / U
+    gap_out = (r2 - r.max()) / dx
+    note = f"t = {t_end:g} s, {n} particles, {round((r2 - r1) / dx)} across"
+    metrics = [Metric("circular_couette.velocity_error_of_U", float(error.max()), 0.03,
+                      f"largest of {rings} rings, {note}; the outermost particle {gap_out:.2f} dx from the outer wall"),
+               Metric("circular_couette.inner_half_error_of_U", float(error[: rings // 2].max()), 0.03,
+                      f"the {rings // 2} rings nearest the turning cylinder")]
+    if not opts.plot:
+        return metrics
+    plt = _plot()
+    fig, ax = plt.subplots(figsize=(6, 4))
+    rr = np.linspace(r1, r2, 200)
+    ax.plot(rr / r1, circular_couette_velocity(rr, omega, r1, r2) / U, "k-", lw=1, label="A r + B / r")
+    ax.plot(r / r1, u / U, ".", ms=1, color="C1", alpha=0.4, label="particles")
+    ax.plot((r1 + (np.arange(rings) + 0.5) * (r2 - r1) / rings) / r1, mean / U, "o", color="C0", label="ring means")
+    ax.set_xlabel("r / R1")
+    ax.set_ylabel("u_theta / (Omega R1)")
+    ax.legend(fontsize=8)
+    ax.set_title(f"Circular Couette flow, a turning inner cylinder ({note})", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(out / "circular_couette.png", dpi=100)
+    plt.close(fig)
+    return metrics
+
+
 CASES = {"hydrostatic": hydrostatic, "hydrostatic_3d": hydrostatic_3d, "dam_break": dam_break, "dam_break_3d": dam_break_3d,
          "taylor_green": taylor_green, "oscillating_drop": oscillating_drop, "poiseuille": poiseuille,
          "couette": couette, "floating_box": floating_box, "hydrostatic_probes": hydrostatic_probes,
-         "cavity": cavity, "dam_break_pressure": dam_break_pressure, "channel": channel}
+         "cavity": cavity, "dam_break_pressure": dam_break_pressure, "channel": channel,
+         "circular_couette": circular_couette}
 
 
 def run_validate(names: list[str], quick: bool, out: Path, backend: str = "cpu", overrides: tuple = ()) -> int:

@@ -66,7 +66,7 @@ from nodes import wire
 from nodes.frames import SURFACE_SCALE, surface_lattice
 from nodes.rerun_sinks import LIVE_FPS, Streams, sinks_for
 from nodes.walls_view import (body_shifts, floating_obstacles, merge_layer, moving_obstacles, obstacle_distance,
-                               obstacle_layer, wall_meshes)
+                               obstacle_layer, obstacle_transform, wall_meshes)
 from nodes.zenoh_transport import zenoh_config
 from sphcore.output import write_summary
 from sphcore.render import LUT, RANK_COLOURS, Framelet, SceneRenderer, composite, draw_box
@@ -487,7 +487,7 @@ class Viewer:
         shifts = body_shifts(self.scene, stats[ranks[0]].get("bodies"))  # floating bodies, as rank 0 has them
         rgb, depth = self.image(frames, sim_time, shifts)
         for i, motion in moving_obstacles(self.scene).items():  # the 3D view's meshes follow them too
-            rec.log(f"obstacles/{i}", rr.Transform3D(translation=motion.displacement(sim_time)))
+            rec.log(f"obstacles/{i}", rr.Transform3D(**obstacle_transform(self.scene, i, motion, sim_time)))
         for i, shift in shifts.items():
             rec.log(f"obstacles/{i}", rr.Transform3D(translation=shift))
         jpeg = encode_jpeg(rgb, RGB_QUALITY)

@@ -109,13 +109,33 @@ def obstacle_distance(scene):
     if not parts:
         return None
     moving = moving_obstacles(scene)
+    centres = [centre for _, centre, _, _ in _placed(scene)]
+
+    def at_rest(i, p, t):
+        """The points p of the world at time t where obstacle i was at t = 0 (motion.py: turned
+        about its pivot, then displaced)."""
+        motion = moving[i]
+        p = p - motion.displacement(t)
+        if not motion.rotates:
+            return p
+        pivot = centres[i] + motion.pivot
+        return pivot + (p - pivot) @ motion.rotation(t)  # R^T (p - P) per row
 
     def distance(p, t=0.0, shifts=None):
         """``shifts``: {obstacle index: displacement (3,)} of the floating bodies (from the peers)."""
         shifts = shifts or {}
-        return np.min(np.stack([f(p - shifts[i]) if i in shifts else f(p - moving[i].displacement(t)) if i in moving
+        return np.min(np.stack([f(p - shifts[i]) if i in shifts else f(at_rest(i, p, t)) if i in moving
                                 else f(p) for i, f in enumerate(parts)]), axis=0)
     return distance
+
+
+def obstacle_transform(scene, i: int, motion, t: float) -> dict:
+    """Transform3D arguments that carry obstacle i's mesh (logged where it is at t = 0) to time t."""
+    if not motion.rotates:
+        return {"translation": motion.displacement(t)}
+    R = motion.rotation(t)
+    pivot = _placed(scene)[i][1] + motion.pivot
+    return {"translation": pivot - R @ pivot + motion.displacement(t), "mat3x3": R}
 
 
 def obstacle_layer(scene, camera, box, iterations: int = 128, t: float = 0.0, sdf=None, shifts=None):

@@ -22,6 +22,9 @@ from sphcore.physics.open_boundary import ZONE_COLUMNS, ZONE_FAR, ZONE_INLET, ZO
 from sphcore.scene import Scene
 
 
+MOTION_COLUMNS = 15  # Walls.motion: u_w, a_w, Omega, alpha, P(t)
+
+
 def rotation_matrix(degrees) -> np.ndarray:
     """R = Rz @ Ry @ Rx for rotations about x, then y, then z (degrees); local -> world."""
     ax, ay, az = (math.radians(a) for a in degrees)
@@ -40,7 +43,9 @@ class Walls:
     lo: np.ndarray          # (3,) lower corner of the domain's bounding box
     hi: np.ndarray          # (3,) upper corner
     container_walls: int    # the first walls belong to the container
-    motion: np.ndarray      # (nw, 6) float: each wall's velocity (m/s) and acceleration (m/s^2) now
+    motion: np.ndarray      # (nw, 15) float, now: each wall's velocity u_w [0:3] (m/s) and acceleration a_w [3:6]
+                            # (m/s^2) at its pivot, angular velocity Omega [6:9] (rad/s) and acceleration alpha
+                            # [9:12] (rad/s^2), the pivot P(t) [12:15] (m) (motion.py; physics/walls.py reads them)
     moves: tuple = ()       # (wall row, motion.Motion or motion.FloatingBody) of the walls that move
     rest: np.ndarray | None = None  # (nw, 16+) float64: the rows at t = 0
     zones: np.ndarray | None = None  # (nz, 10) float: inlet and outlet zones (physics/open_boundary.py)
@@ -63,12 +68,23 @@ class Walls:
         for q, motion in self.moves:
             shift = motion.displacement(t)
             row = self.rest[q].copy()
+            pivot = row[0:3] + motion.pivot
+            if motion.rotates:  # turn the geometry about the pivot (motion.py): its point, then its axes
+                R = motion.rotation(t)
+                row[0:3] = pivot + R @ (row[0:3] - pivot)
+                if self.kind[q] == WallKind.PLANE:
+                    row[3:6] = R @ row[3:6]
+                elif self.kind[q] in (WallKind.BOX_OUTSIDE, WallKind.CYLINDER_INSIDE):
+                    row[6:15] = (R @ row[6:15].reshape(3, 3)).ravel()
             row[0:3] += shift
             if self.kind[q] == WallKind.MESH_OUTSIDE:
                 row[16:19] += shift  # the distance grid's origin (sphcore.mesh_sdf layout)
             self.data[q] = row
             self.motion[q, 0:3] = motion.wall_velocity(t)
             self.motion[q, 3:6] = motion.wall_acceleration(t)
+            self.motion[q, 6:9] = motion.angular_velocity(t)
+            self.motion[q, 9:12] = motion.angular_acceleration(t)
+            self.motion[q, 12:15] = pivot + shift
         return True
 
 
@@ -176,7 +192,7 @@ def build_walls(scene: Scene, kernel: Kernel, H: float, dtype) -> Walls:
         kind=np.array(kinds, dtype=np.int32),
         data=_pad_rows(rows, dtype),
         tables=tables.astype(dtype), lo=lo, hi=hi, container_walls=n_container,
-        motion=np.zeros((len(kinds), 6), dtype=dtype),
+        motion=np.zeros((len(kinds), MOTION_COLUMNS), dtype=dtype),
         moves=tuple((q, m) for q, m in moving if m is not None),
         rest=_pad_rows(rows, np.float64),
         zones=zone_rows(scene, dtype),

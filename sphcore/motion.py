@@ -23,10 +23,26 @@ first and last rows; before the first row and after the last the wall rests. So 
 everywhere (no impulse into the fluid at a row, and none at the ends), the path never overshoots
 the table between rows (a paddle does not pass its stops), and a_w is piecewise linear.
 
-Every peer evaluates X(t), u_w(t), a_w(t) from the same t in float64, so all peers move their walls
-to the same bits; a resumed run moves them to its checkpoint's t. A ``FloatingBody`` answers the
-same three questions from its state instead of from t: the fluid moves it (two-way coupling).
-Rotation is not available yet.
+A wall may also turn about one fixed axis through its pivot P (the scene's ``pivot``, relative to
+its reference point at t = 0), by the angle vector
+
+    theta(t) = W t + B (sin(omega t + phi) - sin(phi))        (W, B parallel: one axis e)
+
+with the same frequency and phase as the translation: R(t) is the rotation by theta . e about e
+(Rodrigues), the wall's geometry is turned by R(t) about P and then displaced by X(t), and every
+point r of it moves at
+
+    u(r) = u_w + Omega x (r - P(t)),      a(r) = a_w + alpha x (r - P(t)) + Omega x (Omega x (r - P(t))),
+
+Omega = theta', alpha = theta'', P(t) = P + X(t). The walls' terms evaluate u and a at the wall point
+nearest the particle (physics/walls.py ``wall_point_velocity``); a wall that only translates has
+Omega = alpha = 0 there and computes what it did before rotation existed. A path or a floating body
+does not turn (a floating body keeps its orientation).
+
+Every peer evaluates X(t), u_w(t), a_w(t) (and R, Omega, alpha) from the same t in float64, so all
+peers move their walls to the same bits; a resumed run moves them to its checkpoint's t. A
+``FloatingBody`` answers the same questions from its state instead of from t: the fluid moves it
+(two-way coupling).
 """
 from __future__ import annotations
 
@@ -36,27 +52,79 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
+class _NoRotation:
+    """What a wall that does not turn answers (a path, a floating body)."""
+    rotates = False
+    pivot = np.zeros(3)
+
+    def rotation(self, t: float) -> np.ndarray:
+        return np.eye(3)
+
+    def angular_velocity(self, t: float) -> np.ndarray:
+        return np.zeros(3)
+
+    def angular_acceleration(self, t: float) -> np.ndarray:
+        return np.zeros(3)
+
+
+def _vector(values) -> np.ndarray:
+    out = np.zeros(3)
+    out[: len(values)] = values
+    return out
+
+
 @dataclass(frozen=True)
 class Motion:
-    """One wall's prescribed translation (module docstring); vectors are (3,) float64."""
+    """One wall's prescribed translation and rotation (module docstring); vectors are (3,) float64."""
     velocity: np.ndarray     # V (m/s)
     amplitude: np.ndarray    # A (m)
     omega: float             # 2 pi f (rad/s)
     phase: float             # phi (rad)
+    spin: np.ndarray = field(default_factory=lambda: np.zeros(3))            # W (rad/s)
+    spin_amplitude: np.ndarray = field(default_factory=lambda: np.zeros(3))  # B (rad)
+    pivot: np.ndarray = field(default_factory=lambda: np.zeros(3))           # P from the reference point (m)
 
     @classmethod
     def of(cls, item) -> "Motion | Path | None":
-        """The motion of a scene item with velocity, amplitude, frequency and phase keys, or a path
-        (a plane, an obstacle); None if it does not move."""
+        """The motion of a scene item with velocity, amplitude, frequency and phase keys (and
+        angular_velocity, angular_amplitude, pivot), or a path (a plane, an obstacle); None if it
+        does not move."""
         if getattr(item, "path", ()):
             return Path.of(item.path)
-        velocity = np.zeros(3)
-        velocity[: len(item.velocity)] = item.velocity
-        amplitude = np.zeros(3)
-        amplitude[: len(item.amplitude)] = item.amplitude
-        if not velocity.any() and not (amplitude.any() and item.frequency > 0.0):
+        velocity, amplitude = _vector(item.velocity), _vector(item.amplitude)
+        spin = np.radians(_vector(getattr(item, "angular_velocity", ())))
+        spin_amplitude = np.radians(_vector(getattr(item, "angular_amplitude", ())))
+        oscillates = item.frequency > 0.0
+        if not (velocity.any() or spin.any() or (oscillates and (amplitude.any() or spin_amplitude.any()))):
             return None
-        return cls(velocity, amplitude, 2.0 * math.pi * item.frequency, math.radians(item.phase))
+        return cls(velocity, amplitude, 2.0 * math.pi * item.frequency, math.radians(item.phase), spin,
+                   spin_amplitude, _vector(getattr(item, "pivot", ())))
+
+    @property
+    def rotates(self) -> bool:
+        return bool(self.spin.any() or self.spin_amplitude.any())
+
+    def _axis(self) -> np.ndarray:
+        w = self.spin if self.spin.any() else self.spin_amplitude
+        return w / np.linalg.norm(w)
+
+    def rotation(self, t: float) -> np.ndarray:
+        """R(t): the rotation by theta(t) . e about the axis e (Rodrigues)."""
+        if not self.rotates:
+            return np.eye(3)
+        e = self._axis()
+        theta = self.spin * t + self.spin_amplitude * (math.sin(self.omega * t + self.phase) - math.sin(self.phase))
+        angle = float(theta @ e)
+        K = np.array([[0.0, -e[2], e[1]], [e[2], 0.0, -e[0]], [-e[1], e[0], 0.0]])
+        return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * (K @ K)
+
+    def angular_velocity(self, t: float) -> np.ndarray:
+        """Omega(t) (rad/s)."""
+        return self.spin + self.spin_amplitude * (self.omega * math.cos(self.omega * t + self.phase))
+
+    def angular_acceleration(self, t: float) -> np.ndarray:
+        """alpha(t) (rad/s^2)."""
+        return self.spin_amplitude * (-self.omega ** 2 * math.sin(self.omega * t + self.phase))
 
     def displacement(self, t: float) -> np.ndarray:
         """X(t) (m)."""
@@ -70,13 +138,15 @@ class Motion:
         """a_w(t) (m/s^2)."""
         return self.amplitude * (-self.omega ** 2 * math.sin(self.omega * t + self.phase))
 
-    def largest_speed(self) -> float:
-        """An upper bound of |u_w(t)| (m/s): the scene refuses walls as fast as sound."""
-        return math.hypot(*self.velocity) + math.hypot(*self.amplitude) * self.omega  # hypot: no overflow
+    def largest_speed(self, reach: float = 0.0) -> float:
+        """An upper bound of |u(r)| (m/s) over the wall's points within ``reach`` (m) of its pivot:
+        the scene refuses walls as fast as sound."""
+        translation = math.hypot(*self.velocity) + math.hypot(*self.amplitude) * self.omega  # hypot: no overflow
+        return translation + (math.hypot(*self.spin) + math.hypot(*self.spin_amplitude) * self.omega) * reach
 
 
 @dataclass(frozen=True)
-class Path:
+class Path(_NoRotation):
     """A wall's tabulated translation (module docstring): times t (k,) s increasing, displacements X
     (k, 3) m, and the interpolant's slopes m (k, 3) m/s at the rows."""
     t: np.ndarray
@@ -126,7 +196,7 @@ class Path:
         return ((12 * s - 6) * self.X[k] / h ** 2 + (6 * s - 4) * self.m[k] / h
                 + (-12 * s + 6) * self.X[k + 1] / h ** 2 + (6 * s - 2) * self.m[k + 1] / h)
 
-    def largest_speed(self) -> float:
+    def largest_speed(self, reach: float = 0.0) -> float:
         """An upper bound of |u_w(t)| (m/s): on each interval each axis's speed is a quadratic in s,
         whose largest magnitude is at an end or at its vertex; the axes' largest, combined."""
         h = np.diff(self.t)[:, None]
@@ -163,7 +233,7 @@ def _monotone_slopes(t: np.ndarray, X: np.ndarray) -> np.ndarray:
 
 
 @dataclass
-class FloatingBody:
+class FloatingBody(_NoRotation):
     """A rigid obstacle moved by the fluid (two-way coupling), translating only: its wall row
     ``wall``, mass M (kg; kg/m in 2D) and the axes it may move along (``free``, 1 or 0). Each step
     the fluid's force on it is the reaction to the wall terms its wall exerts on the particles,

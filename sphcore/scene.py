@@ -196,6 +196,13 @@ def _motion(what: str) -> dict:
         "amplitude": spec((0.0, 0.0, 0.0), f"the {what}'s oscillation amplitude (m)", length=VEC),
         "frequency": spec(0.0, "oscillation frequency (Hz; 0 = none)", range=(0.0, math.inf)),
         "phase": spec(0.0, "oscillation phase at t = 0 (degrees)", range=(-360.0, 360.0)),
+        "angular_velocity": spec((0.0, 0.0, 0.0), f"the {what}'s constant rotation rate about its pivot (degrees/s, a "
+                                                  "vector along the axis; 2D: z only)", length=VEC),
+        "angular_amplitude": spec((0.0, 0.0, 0.0), f"the {what}'s oscillation of its angle about its pivot (degrees, a "
+                                                   "vector along the axis, at frequency and phase; parallel to "
+                                                   "angular_velocity)", length=VEC),
+        "pivot": spec((0.0, 0.0, 0.0), f"the point the {what} turns about, from its "
+                                       f"{'point' if what == 'plane' else 'centre'} at t = 0 (m)", length=VEC),
         "path": spec((), f"instead: a table of the {what}'s displacement from where the scene puts it, rows [t, x, y(, z)] "
                          "(s, m), t increasing, the first row's displacement 0; a monotone cubic between rows, at "
                          "rest before the first and after the last", rows=MAX_PATH_ROWS),
@@ -214,6 +221,9 @@ class Plane:
     amplitude: tuple = _PLANE_MOTION["amplitude"]
     frequency: float = _PLANE_MOTION["frequency"]
     phase: float = _PLANE_MOTION["phase"]
+    angular_velocity: tuple = _PLANE_MOTION["angular_velocity"]
+    angular_amplitude: tuple = _PLANE_MOTION["angular_amplitude"]
+    pivot: tuple = _PLANE_MOTION["pivot"]
     path: tuple = _PLANE_MOTION["path"]
 
 
@@ -251,6 +261,9 @@ class Obstacle:
     amplitude: tuple = _OBSTACLE_MOTION["amplitude"]
     frequency: float = _OBSTACLE_MOTION["frequency"]
     phase: float = _OBSTACLE_MOTION["phase"]
+    angular_velocity: tuple = _OBSTACLE_MOTION["angular_velocity"]
+    angular_amplitude: tuple = _OBSTACLE_MOTION["angular_amplitude"]
+    pivot: tuple = _OBSTACLE_MOTION["pivot"]
     path: tuple = _OBSTACLE_MOTION["path"]
     density: float = spec(0.0, "a floating body: its density (kg/m^3), moved by the fluid's force and the body "
                                "forces (sphere and box; 0 = fixed, or moved as velocity/amplitude say)",
@@ -972,20 +985,29 @@ def _check_motion(s, key: str, item):
     """A wall's prescribed motion (sphcore/motion.py): in the scene's plane in 2D, an oscillation
     with a frequency, and a frequency with an amplitude."""
     if s.dim == 2:
-        for name in ("velocity", "amplitude"):
+        for name in ("velocity", "amplitude", "pivot"):
             value = getattr(item, name)
             if len(value) == 3 and value[2] != 0.0:
                 raise SceneError(f"{key}.{name} = {list(value)!r}: z must be 0 in 2D")
-    if any(item.amplitude) and item.frequency == 0.0:
-        raise SceneError(f"{key}.amplitude = {list(item.amplitude[:s.dim])!r}: an oscillation needs {key}.frequency > 0 "
-                         "(Hz)")
-    if item.frequency > 0.0 and not any(item.amplitude):
-        raise SceneError(f"{key}.frequency = {item.frequency!r}: an oscillation needs a non-zero {key}.amplitude (m)")
+        for name in ("angular_velocity", "angular_amplitude"):
+            value = getattr(item, name)
+            if any(value[:2]):
+                raise SceneError(f"{key}.{name} = {list(value)!r}: a 2D scene turns about z only, e.g. [0, 0, 30]")
+    oscillating = any(item.amplitude) or any(item.angular_amplitude)
+    if oscillating and item.frequency == 0.0:
+        name = "amplitude" if any(item.amplitude) else "angular_amplitude"
+        value = list(getattr(item, name)[: s.dim] if name == "amplitude" else getattr(item, name))
+        raise SceneError(f"{key}.{name} = {value!r}: an oscillation needs {key}.frequency > 0 (Hz)")
+    if item.frequency > 0.0 and not oscillating:
+        raise SceneError(f"{key}.frequency = {item.frequency!r}: an oscillation needs a non-zero {key}.amplitude (m) or "
+                         f"{key}.angular_amplitude (degrees)")
+    _check_rotation(s, key, item)
     if item.path:
         _check_path(s, key, item)
     from sphcore.motion import Motion
     motion = Motion.of(item)
-    speed = motion.largest_speed() if motion is not None else 0.0
+    reach = math.hypot(*_domain_extent(s)) + math.hypot(*item.pivot)  # no wall point farther from the pivot
+    speed = motion.largest_speed(reach) if motion is not None else 0.0
     if speed >= s.sph.sound_speed:
         what = "path" if item.path else "velocity / amplitude / frequency"
         raise SceneError(f"{key}.{what}: the wall moves at up to {speed:.3g} m/s, not below "
@@ -994,6 +1016,28 @@ def _check_motion(s, key: str, item):
     if motion is not None and s.sph.solver != "wcsph":
         raise SceneError(f"{key}.{'path' if item.path else 'velocity / amplitude'}: moving walls need sph.solver = "
                          "'wcsph' (DFSPH's solves do not see the walls move)")
+
+
+def _check_rotation(s, key: str, item):
+    """A prescribed rotation turns about one axis (angular_velocity and angular_amplitude parallel),
+    not with a path (translation only) or a floating body (it keeps its orientation), and not a
+    mesh obstacle (its distance grid is laid out in the world's axes)."""
+    W, B = item.angular_velocity, item.angular_amplitude
+    if not (any(W) or any(B)):
+        return
+    cross = (W[1] * B[2] - W[2] * B[1], W[2] * B[0] - W[0] * B[2], W[0] * B[1] - W[1] * B[0])
+    if any(abs(c) > 1e-12 * math.hypot(*W) * math.hypot(*B) for c in cross):
+        raise SceneError(f"{key}.angular_velocity = {list(W)!r} and {key}.angular_amplitude = {list(B)!r}: a wall turns "
+                         "about one axis; give them the same direction")
+    if item.path:
+        raise SceneError(f"{key}.path: a path translates only; give the rotation without a path, or the path "
+                         "without angular_velocity / angular_amplitude")
+    if getattr(item, "density", 0.0) > 0.0:
+        raise SceneError(f"{key}.angular_velocity / angular_amplitude: a floating body keeps its orientation (the "
+                         "fluid moves it; rotation of floating bodies is not modelled)")
+    if getattr(item, "shape", "") == "mesh":
+        raise SceneError(f"{key}.angular_velocity / angular_amplitude: a mesh obstacle cannot turn (its signed "
+                         "distance grid is laid out along the world's axes); it can translate")
 
 
 def _check_path(s, key: str, item):

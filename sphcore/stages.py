@@ -82,7 +82,8 @@ ARGUMENTS = MappingProxyType({
     "wall_kind": ("kinds", "wall primitive kinds (choices.WallKind)"),
     "wall_data": ("table", "wall primitive geometry rows (physics/walls.py)"),
     "wall_tables": ("table", "tabulated wall integrals (boundaries.py)"),
-    "wall_motion": ("table", "each wall's velocity [0:3] (m/s) and acceleration [3:6] (m/s^2) now (motion.py)"),
+    "wall_motion": ("table", "each wall's velocity [0:3] (m/s), acceleration [3:6] (m/s^2), angular velocity [6:9] "
+                             "(rad/s) and acceleration [9:12] (rad/s^2) about its pivot [12:15] (m), now (motion.py)"),
     "wall_zones": ("table", "inlet and outlet zones: [kind, lo (3), hi (3), U (3)] (physics/open_boundary.py)"),
     "lo": ("row", "the grid origin (3,) (m): periodic wrapping"),
     # per-step scalars the step passes

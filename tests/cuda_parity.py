@@ -177,6 +177,8 @@ CASES = {
     # a floating body: its force, the reaction to its wall's terms, reduced on the device
     "floating_f64": lambda: steps_case(scene("floating_box_2d.toml", "particles.spacing=0.04",
                                              "forces.ramp_time=0.001"), "f64", 5),
+    # a turning wall (motion.py): the inner cylinder's velocity Omega x (r - P) at each wall point
+    "rotating_f64": lambda: steps_case(scene("circular_couette_2d.toml", "particles.spacing=1e-4"), "f64", 3),
     # inlets and outlets (open_boundary.py): a layer enters, rows leave, on the device as on the CPU
     "open_f64": lambda: open_case(scene("channel_2d.toml", "particles.spacing=1e-3"), "f64", 6),
     "walk_dfsph_peers_f64": lambda: peers_case(scene("tiny.toml", "run.neighbours='walk'", "sph.solver='dfsph'",

@@ -33,7 +33,7 @@ TOL = {"f64": {"x": 1e-12, "v": 1e-12, "rho": 1e-12, "p": 1e-12, "a": 1e-11},
 # this fixture, so the second core would otherwise idle through its ~3-5 minutes)
 GROUPS = (["dfsph_f64", "tiny_f64", "terms_f64", "obstacle_f64", "walk_terms_f64", "moving_walls_f64", "open_f64"],
           ["dfsph_peers_f64", "tiny_f32", "periodic_f64", "peers_f64", "continuity_f64", "walk_dfsph_peers_f64",
-           "floating_f64"])
+           "floating_f64", "rotating_f64"])
 
 
 def _parity(simulator: bool) -> dict:
@@ -86,7 +86,7 @@ def test_float32_steps_match_cpu(parity):
 
 
 @pytest.mark.parametrize("case", ["terms_f64", "periodic_f64", "obstacle_f64", "dfsph_f64", "continuity_f64",
-                                  "walk_terms_f64", "moving_walls_f64", "floating_f64"])
+                                  "walk_terms_f64", "moving_walls_f64", "floating_f64", "rotating_f64"])
 def test_options_match_cpu(parity, case):
     """Optional terms (XSPH, surface tension, vorticity confinement), leapfrog, Morris and Müller
     viscosity, linear EOS, cubic spline and Müller kernels, periodic axes, an obstacle, the DFSPH

@@ -5,7 +5,7 @@ import math
 
 from numba import njit
 
-from sphcore.physics.walls import signed_distance
+from sphcore.physics.walls import signed_distance, wall_point_velocity
 from sphcore.physics.real import like
 
 
@@ -65,7 +65,9 @@ def boundaries_row(periodic, prm, i, x, v, lo, wall_kind, wall_data, wall_motion
                 x[i, 0] += push * nx
                 x[i, 1] += push * ny
                 x[i, 2] += push * nz
-                ux, uy, uz = wall_motion[q, 0], wall_motion[q, 1], wall_motion[q, 2]
+                # the wall's velocity at its point nearest the particle (before the push)
+                ux, uy, uz = wall_point_velocity(wall_motion, q, x[i, 0] - prm.wall_gap * nx,
+                                                 x[i, 1] - prm.wall_gap * ny, x[i, 2] - prm.wall_gap * nz)
                 vn = (v[i, 0] - ux) * nx + (v[i, 1] - uy) * ny + (v[i, 2] - uz) * nz
                 if vn < 0.0:
                     _reflect(v, i, 0, vn, nx, ux, prm)

@@ -227,6 +227,27 @@ def _perpendicular(n1, n2):
     return abs(c) < like(c, 1.0e-6)
 
 
+@njit(cache=True, inline="always")
+def wall_point_velocity(motion, q, x, y, z):
+    """u(r) = u_w + Omega x (r - P) of wall q at the point r = (x, y, z) (motion.py)."""
+    rx, ry, rz = x - motion[q, 12], y - motion[q, 13], z - motion[q, 14]
+    wx, wy, wz = motion[q, 6], motion[q, 7], motion[q, 8]
+    return (motion[q, 0] + (wy * rz - wz * ry), motion[q, 1] + (wz * rx - wx * rz),
+            motion[q, 2] + (wx * ry - wy * rx))
+
+
+@njit(cache=True, inline="always")
+def wall_point_acceleration(motion, q, x, y, z):
+    """a(r) = a_w + alpha x (r - P) + Omega x (Omega x (r - P)) of wall q at r (motion.py)."""
+    rx, ry, rz = x - motion[q, 12], y - motion[q, 13], z - motion[q, 14]
+    wx, wy, wz = motion[q, 6], motion[q, 7], motion[q, 8]
+    ex, ey, ez = motion[q, 9], motion[q, 10], motion[q, 11]
+    cx, cy, cz = wy * rz - wz * ry, wz * rx - wx * rz, wx * ry - wy * rx  # Omega x r
+    return (motion[q, 3] + (ey * rz - ez * ry) + (wy * cz - wz * cy),
+            motion[q, 4] + (ez * rx - ex * rz) + (wz * cx - wx * cz),
+            motion[q, 5] + (ex * ry - ey * rx) + (wx * cy - wy * cx))
+
+
 @njit(cache=True)
 def wall_terms(kernel, prm, want_force, kinds, data, tables, motion, frame, x, y, z, p_i, rho_i, bx, by, bz):
     """Wall contributions at (x, y, z): (delta rho, ax, ay, az) — density share when ``want_force``
@@ -254,10 +275,11 @@ def wall_terms(kernel, prm, want_force, kinds, data, tables, motion, frame, x, y
             qx = bx
             qy = by
             qz = bz
-            if frame:
-                qx -= motion[q, 3]
-                qy -= motion[q, 4]
-                qz -= motion[q, 5]
+            if frame:  # the wall's acceleration at its point nearest the particle
+                awx, awy, awz = wall_point_acceleration(motion, q, x - d * nx, y - d * ny, z - d * nz)
+                qx -= awx
+                qy -= awy
+                qz -= awz
             b_n = qx * nx + qy * ny + qz * nz
             push = prm.rho0 / (rho_i * rho_i) * (like(p_i, -2.0) * p_i * table_lookup(tables[1], d, prm.wall_table_end)
                                                   + rho_i * b_n * table_lookup(tables[2], d, prm.wall_table_end))
@@ -321,13 +343,14 @@ def wall_viscosity(prm, kinds, data, tables, motion, x, y, z, rho_i):
     uy = like(prm.H, 0.0)
     uz = like(prm.H, 0.0)
     for q in range(kinds.shape[0]):
-        d, _, _, _ = signed_distance(kinds[q], data[q], x, y, z)
+        d, nx, ny, nz = signed_distance(kinds[q], data[q], x, y, z)
         if d < prm.H:
             gv = table_lookup(tables[4], d, prm.wall_table_end)
             k += gv
-            ux += gv * motion[q, 0]
-            uy += gv * motion[q, 1]
-            uz += gv * motion[q, 2]
+            uwx, uwy, uwz = wall_point_velocity(motion, q, x - d * nx, y - d * ny, z - d * nz)  # at its nearest point
+            ux += gv * uwx
+            uy += gv * uwy
+            uz += gv * uwz
     c = like(k, 2.0) * prm.mu / rho_i
     return c * k, c * ux, c * uy, c * uz
 
@@ -360,8 +383,12 @@ def moving_wall_rate(kernel, prm, wall_kind, wall_data, wall_tables, wall_motion
     rate = like(rho_i, 0.0)
     for q in range(wall_kind.shape[0]):
         ux, uy, uz = wall_motion[q, 0], wall_motion[q, 1], wall_motion[q, 2]
-        if ux == 0.0 and uy == 0.0 and uz == 0.0:
+        turning = wall_motion[q, 6] != 0.0 or wall_motion[q, 7] != 0.0 or wall_motion[q, 8] != 0.0
+        if ux == 0.0 and uy == 0.0 and uz == 0.0 and not turning:
             continue
+        if turning:  # a turning wall's velocity at its point nearest row i
+            d, nx, ny, nz = signed_distance(wall_kind[q], wall_data[q], x[i, 0], x[i, 1], x[i, 2])
+            ux, uy, uz = wall_point_velocity(wall_motion, q, x[i, 0] - d * nx, x[i, 1] - d * ny, x[i, 2] - d * nz)
         gx, gy, gz = wall_density_gradient(kernel, prm, wall_kind[q:q + 1], wall_data[q:q + 1], wall_tables, x, i,
                                            rho_i, theta)
         rate += gx * ux + gy * uy + gz * uz
