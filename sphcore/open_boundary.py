@@ -25,6 +25,7 @@ import math
 import numpy as np
 
 from sphcore.physics.walls import min_wall_distance
+from sphcore.scene import SceneError
 from sphcore.state import with_new_owned
 
 ID_STRIDE = 2 ** 40  # inlet q's ids start at (q + 1) * ID_STRIDE; the blocks' are 0 .. n_initial - 1
@@ -90,6 +91,10 @@ class OpenBoundaries:
         self.dim = scene.dim
         dx = scene.particles.spacing
         self.inlets = [InletLattice(z, q, scene.dim, dx, walls) for q, z in enumerate(scene.inlets)]
+        for q, lattice in enumerate(self.inlets):
+            if not len(lattice.nodes):
+                raise SceneError(f"inlets[{q}]: no node of its cross-section lies inside the domain (each is within "
+                                 "half a spacing of a wall or outside it); widen the zone or move it off the walls")
         self.outlets = []
         for z in scene.outlets:
             axis, sign = _axis(z.direction, scene.dim)

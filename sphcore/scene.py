@@ -1120,6 +1120,13 @@ def _check_open_boundaries(s: Scene):
     if not zones:
         return
     H = s.sph.support * s.particles.spacing
+    dom = s.domain
+    if dom.container == "none":
+        lo, hi = dom.bounds_min, dom.bounds_max
+    else:
+        half = [0.5 * e for e in _domain_extent(s)]
+        lo, hi = [c - h for c, h in zip(dom.center, half)], [c + h for c, h in zip(dom.center, half)]
+    slack = 1e-9 * max(_domain_extent(s)[: s.dim])
     boxes = []
     for name, i, z in zones:
         key = f"{name}[{i}]"
@@ -1128,6 +1135,10 @@ def _check_open_boundaries(s: Scene):
         if any(z.max[d] <= z.min[d] for d in range(s.dim)):
             raise SceneError(f"{key}.max = {list(z.max[: s.dim])!r}: must exceed {key}.min = {list(z.min[: s.dim])!r} "
                              "on every axis")
+        if any(z.min[d] < lo[d] - slack or z.max[d] > hi[d] + slack for d in range(s.dim)):
+            raise SceneError(f"{key}: the zone {list(z.min[: s.dim])!r} .. {list(z.max[: s.dim])!r} reaches outside the "
+                             f"domain's box {[round(v, 12) for v in lo[: s.dim]]!r} .. "
+                             f"{[round(v, 12) for v in hi[: s.dim]]!r}")
         vec_key, vec = (f"{key}.velocity", z.velocity) if name == "inlets" else (f"{key}.direction", z.direction)
         axis = _axis_of(s, vec_key, vec)
         if name == "outlets" and abs(vec[axis]) != 1.0:

@@ -35,6 +35,8 @@ BAD = [
     (["outlets[0].min=[2e-3, 0.0]", "outlets[0].max=[6e-3, 1e-2]"], "outlets[0]: overlaps inlets[0]"),
     (["sph.solver='dfsph'", "time.integrator='symplectic_euler'"], "inlets and outlets need sph.solver = 'wcsph'"),
     (["inlets[0].min=[0.0, 0.0, 0.1]"], "inlets[0]: min and max z must be 0 in a 2D scene"),
+    (["inlets[0].max=[3e-3, 1e6]"], "inlets[0]: the zone [0.0, 0.0] .. [0.003, 1000000.0] reaches outside the domain's "
+     "box [0.0, 0.0] .. [0.06, 0.01]"),
 ]
 
 
@@ -51,6 +53,14 @@ def test_a_zone_needs_its_corners(tmp_path):
     path.write_text(CHANNEL.read_text() + "\n[[outlets]]\nmin = [0.02, 0.0]\n")
     with pytest.raises(SceneError, match=r"outlets\[1\]: no max given"):
         load_scene(path)
+
+
+@pytest.mark.fast
+def test_an_inlet_with_no_node_off_the_walls_is_refused_before_the_first_step(tmp_path):
+    path = tmp_path / "scene.toml"
+    path.write_text(CHANNEL.read_text() + '\n[[domain.planes]]\npoint = [0.0, 0.0]\nnormal = [1.0, 0.0]\n')
+    with pytest.raises(SceneError, match=r"inlets\[0\]: no node of its cross-section lies inside the domain"):
+        Simulation(load_scene(path, ["domain.planes[2].point=[0.01, 0.0]", "fluid.blocks[0].clip=true"]), "f64")
 
 
 @pytest.mark.fast
@@ -154,3 +164,15 @@ def test_the_developing_channel_flow_reaches_plane_poiseuille(tmp_path):
                                          "channel.outflow_minus_inflow"]
     for m in metrics:
         assert m.passed, m.line()
+
+
+def test_the_recording_draws_the_zones_in_the_3d_view(tmp_path):
+    from launch.cli import main
+    from nodes.recording import blueprint, entity_steps
+    assert main(["run", str(CHANNEL), "--steps", "20", "--set", "render.every=10", "--quiet", "--out",
+                 str(tmp_path)]) == 0
+    rrd = tmp_path / "run.rrd"
+    entities = entity_steps(rrd)
+    assert "/inlets/0" in entities and "/outlets/0" in entities
+    view = next(v for v in blueprint(rrd)["views"] if v["kind"] == "3D")
+    assert "/inlets/**" in view["contents"] and "/outlets/**" in view["contents"]
