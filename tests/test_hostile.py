@@ -39,7 +39,8 @@ ROOT = Path(__file__).resolve().parent.parent
 # expects to be filed as a duplicate would then be an old step (run.energy_check_every, sphcore/health.py)
 SCENE = ["configs/dam_break_2d.toml", "--set", "particles.spacing=0.01", "--precision", "f64",
          "--set", "run.energy_check_every=0"]
-STEPS = 400  # long enough that the pause, sent after the first whole step is seen, comes before the end
+STEPS = 1500  # long enough that the pause, sent after the first whole step is seen, comes before the end
+# (400 were run through on a loaded machine while the controller was still connecting)
 
 
 def peer_command(rank: int, world: int, run_id: str, ports: list[int], out: Path, steps: int = STEPS) -> list[str]:
@@ -195,28 +196,23 @@ def undisturbed(tmp_path_factory):
 
 def _control(capsys, endpoint, run_id, *words, timeout="10"):
     """``sph control`` in this process: (exit code, what it printed)."""
-    rc = main(["control", "--run-id", run_id, "--connect", endpoint, "--timeout", timeout, "--insecure", *words])
+    rc = main(["control", "--run-id", run_id, "--zenoh", endpoint, "--timeout", timeout, "--insecure", *words])
     return rc, capsys.readouterr().err
 
 
 def test_hostile_messages_are_dropped_and_counted_and_the_result_is_unchanged(tmp_path, undisturbed, capsys):
     # Given a 2-peer run, an outsider connected to both peers that has seen a whole step of their
-    # traffic, and an operator who then asks to resume (the run is not paused) and to pause
+    # traffic, and an operator who then asks to pause
     out = tmp_path / "attacked"
     procs, logs, endpoints = start_run("attacked", out)
     attacker = Attacker("attacked", endpoints)
     acks = {}
     seen_step = attacker.wait_for_a_whole_step()
 
-    # the early resume in another process, so that its answer cannot mix with the pause's
-    early = subprocess.Popen([sys.executable, "-m", "launch.cli", "control", "--run-id", "attacked", "--connect",
-                              endpoints[0], "--timeout", "120", "--insecure", "resume"], cwd=ROOT, text=True,
-                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    # (a resume sent while the run goes on is rejected: test_steering, every way of running; here it
+    # raced the pause on a loaded machine, overtook it and resumed the held run)
     try:
-        time.sleep(1.0)  # the early resume reaches rank 0 before the pause
         acks["pause"] = _control(capsys, endpoints[0], "attacked", "pause", timeout="120")
-        err = early.communicate(timeout=30)[1]
-        acks["resume early"] = early.returncode, err
         rc, err = acks["pause"]
         assert rc == 0 and "sph control: accepted at step" in err, err
         step = int(err.rsplit("accepted at step", 1)[1].split()[0])
@@ -244,17 +240,15 @@ def test_hostile_messages_are_dropped_and_counted_and_the_result_is_unchanged(tm
         results = finish(procs, logs)
     finally:
         attacker.close()
-        for p in procs + [early]:
+        for p in procs:
             p.kill()
     # Then both peers exit 0 and the result is the undisturbed run's, bit for bit
     assert [rc for rc, _ in results] == [0, 0], results
     calm, hit = np.load(undisturbed / "final.npz"), np.load(out / "final.npz")
     for key in ("id", "x", "v", "rho"):
         assert np.array_equal(calm[key], hit[key]), key
-    # And every command was answered: the early resume rejected, the pause accepted at the step after
+    # And every command was answered: the pause accepted at the step after
     # which both peers held, the bad value and the second pause rejected with the reason, the resume accepted
-    rc, err = acks["resume early"]
-    assert rc == 2 and "sph control: rejected: resume: the run is not paused" in err, err
     assert acks["held"] == 0
     rc, err = acks["bad value"]
     assert rc == 2 and "sph control: rejected:" in err and "sph.alpha" in err, err
