@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from launch.cli import main
-from launch.validate import (CONFIGS, MARTIN_MOYCE_T, MARTIN_MOYCE_Z, RELEASE_DELAY_MAX_T, Metric, _maxima,
-                             drop_semi_axes, fit_release_delay, front_rms, poiseuille_velocity, run_validate)
+from launch.validate import (CONFIGS, MARTIN_MOYCE_T, MARTIN_MOYCE_Z, RELEASE_DELAY_MAX_T, Metric, _maxima, dam_break_scene,
+                             drop_semi_axes, fit_release_delay, front_rms, front_speed, poiseuille_velocity, run_validate)
 
 
 def test_metric_verdicts():
@@ -22,9 +22,10 @@ def test_martin_moyce_data_is_the_digitized_table():
 def test_a_case_prints_its_metrics_writes_its_plot_and_sets_the_exit_code(tmp_path, capsys):
     rc = run_validate(["dam_break"], quick=True, out=tmp_path)
     lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("dam_break.")]
-    assert [line.split()[0] for line in lines] == ["dam_break.front_rms_relative", "dam_break.release_delay_T"]
+    assert [line.split()[0] for line in lines] == ["dam_break.front_rms_shifted", "dam_break.front_speed_relative"]
     verdicts = [line.split()[3] for line in lines]
     assert set(verdicts) <= {"PASS", "FAIL"} and rc == (0 if verdicts == ["PASS", "PASS"] else 1)
+    assert "15 points" in lines[0] and "the simulated clock + 0.175" in lines[0]  # the 3 m tank, the fixed shift
     assert (tmp_path / "dam_break.png").stat().st_size > 10_000
 
 
@@ -47,6 +48,26 @@ def test_the_release_fit_recovers_a_known_delay_and_never_runs_the_experiment_ea
     fast = 1.0 + 1.2 * (_front(times, 0.0) - 1.0)  # runs 20 % too far: no delay makes up for a wrong speed
     assert front_rms(t, z, times, fast, fit_release_delay(t, z, times, fast)) > 0.05
     assert fit_release_delay(t, z, times, 1.0 + 3.0 * (_front(times, 0.0) - 1.0)) <= 2.0 * RELEASE_DELAY_MAX_T
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_the_dam_break_scene_lets_the_front_reach_every_measured_point(dim):
+    # the 2D scene's probes once made the 3D case refuse to start (2-component points in 3D)
+    sc = dam_break_scene(0.01, dim)
+    assert sc.dim == dim and all(len(p.at) == 3 for p in sc.probes)
+    a = sc.fluid.blocks[0].max[0]
+    assert MARTIN_MOYCE_Z[-1] < (sc.domain.center[0] + 0.5 * sc.domain.size[0] - 2 * 0.01) / a
+
+
+def test_the_front_speed_is_the_slope_between_the_late_points_whatever_the_shift():
+    times = np.linspace(0.0, 10.0, 5001)
+    exact = _front(times, 0.0)
+    measured = (MARTIN_MOYCE_Z[13] - MARTIN_MOYCE_Z[8]) / (MARTIN_MOYCE_T[13] - MARTIN_MOYCE_T[8])
+    assert front_speed(MARTIN_MOYCE_T, times, exact, 0.0) == pytest.approx(measured, rel=1e-3)
+    # a front released 0.175 early is read at T - 0.175: the same front, the same speed
+    assert front_speed(MARTIN_MOYCE_T, times, _front(times, 0.175)) == pytest.approx(measured, rel=1e-3)
+    fast = 1.0 + 1.1 * (exact - 1.0)  # 10 % faster everywhere
+    assert front_speed(MARTIN_MOYCE_T, times, fast, 0.0) == pytest.approx(1.1 * measured, rel=1e-3)
 
 
 def test_unknown_cases_are_refused(capsys):
