@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 from pathlib import Path
 
@@ -351,16 +352,18 @@ def build_parser() -> argparse.ArgumentParser:
 
     validate = sub.add_parser(
         "validate", help="compare with reference solutions and experiments; exit 1 if a metric fails",
-        description="Run validation cases (hydrostatic and hydrostatic_3d, dam_break and dam_break_3d vs Martin & "
-                    "Moyce, taylor_green, "
-                    "oscillating_drop vs Monaghan & Rafiee, poiseuille and couette vs Morris et al., floating_box vs "
-                    "Archimedes, hydrostatic_probes: the tank's [[probes]] vs rho0 g (H0 - y) and the fill height, "
-                    "cavity: the lid-driven cavity vs Ghia et al. 1982, dam_break_pressure: wall pressure vs "
-                    "Buchner 2002), print one line "
-                    "per metric (name value tolerance PASS|FAIL) and write a plot per case.")
+        description="Run validation cases (hydrostatic and hydrostatic_3d, dam_break and dam_break_3d: the front vs "
+                    "Martin & Moyce, taylor_green, oscillating_drop vs Monaghan & Rafiee, poiseuille and couette vs "
+                    "Morris et al., floating_box vs Archimedes, hydrostatic_probes: the tank's [[probes]] vs "
+                    "rho0 g (H0 - y) and the fill height, cavity: the lid-driven cavity vs Ghia et al. 1982, "
+                    "dam_break_pressure: wall pressure vs Buchner 2002, channel: an inlet's flow developing into "
+                    "plane Poiseuille flow before an outlet, circular_couette: a turning cylinder vs A r + B / r, "
+                    "wave_maker: a piston's waves vs linear wave-maker theory), print one line per metric (name "
+                    "value tolerance PASS|FAIL) and write a plot per case.")
     validate.add_argument("cases", nargs="*", metavar="CASE",
                           help="hydrostatic, hydrostatic_3d, dam_break, dam_break_3d, taylor_green, oscillating_drop, "
-                               "poiseuille, couette, floating_box, hydrostatic_probes, cavity, dam_break_pressure")
+                               "poiseuille, couette, floating_box, hydrostatic_probes, cavity, dam_break_pressure, "
+                               "channel, circular_couette, wave_maker")
     validate.add_argument("--all", action="store_true", help="every case")
     validate.add_argument("--quick", action="store_true", help="coarser resolution: under ~2 minutes per case")
     validate.add_argument("--out", type=Path, default=Path("runs/validate"), help="folder for the plots")
@@ -514,6 +517,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"sph {args.command}: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # the reader of stdout left (`sph scene ... | head`): stop quietly, as a shell tool does
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # Python's flush at exit would fail again
+        return 128 + 13  # SIGPIPE's exit status
     return 0
 
 

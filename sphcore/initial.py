@@ -1,8 +1,9 @@
 """Initial particles from a scene: lattice-filled blocks, masses, initial velocities.
 
 Every process generating particles from the same scene gets the same particles with the same global
-ids (blocks in file order, lattice points in z, y, x order within a block), which is what lets each
-peer of a distributed run generate only its own share.
+ids (blocks in file order, lattice points in z, y, x order within a block, or ring by ring from the
+centre for a polar block), which is what lets each peer of a distributed run generate only its own
+share.
 
 Lattice points lie at ``min + (k + 1/2) dx`` so that a block touching a wall starts half a spacing
 from it. Points closer than half a spacing to any wall (outside the container, inside an obstacle)
@@ -21,8 +22,39 @@ from sphcore.physics.walls import min_wall_distance
 from sphcore.scene import Scene, SceneError, block_estimate
 
 
+def _polar_points(centre, radius: float, dim: int, dx: float) -> np.ndarray:
+    """A sphere block's polar lattice: rings (2D) or shells (3D) at r_k = (k + 1/2) dx about the centre,
+    k = 0 .. round(R / dx) - 1, each holding n_k = max(round(2 pi r_k / dx), 1) points (2D: evenly in
+    angle, every other ring turned by half a step) or max(round(4 pi r_k^2 / dx^2), 1) points (3D: the
+    Fibonacci spiral, equal areas). Ring k stands for the annulus k dx .. (k + 1) dx, so a wall
+    circle about the same centre at a whole number of spacings sits half a spacing from the nearest
+    ring, as a flat wall sits from a cartesian lattice; each point holds about dx^dim of volume."""
+    rings = max(int(round(radius / dx)), 1)
+    out = []
+    for k in range(rings):
+        r = (k + 0.5) * dx
+        if dim == 2:
+            n = max(int(round(2.0 * math.pi * r / dx)), 1)
+            theta = 2.0 * math.pi * (np.arange(n) + 0.5 * (k % 2)) / n
+            out.append(np.stack([r * np.cos(theta), r * np.sin(theta), np.zeros(n)], axis=1))
+        else:
+            n = max(int(round(4.0 * math.pi * r * r / (dx * dx))), 1)
+            j = np.arange(n) + 0.5
+            cos_polar = 1.0 - 2.0 * j / n
+            sin_polar = np.sqrt(np.maximum(1.0 - cos_polar**2, 0.0))
+            azimuth = math.pi * (3.0 - math.sqrt(5.0)) * j  # the golden angle
+            out.append(r * np.stack([sin_polar * np.cos(azimuth), sin_polar * np.sin(azimuth), cos_polar], axis=1))
+    return np.asarray(centre, dtype=float) + np.concatenate(out)
+
+
 def _block_points(block, scene: Scene, dx: float) -> np.ndarray:
     dim = scene.dim
+    if block.lattice == "polar":  # a sphere block (scene validation)
+        pts = _polar_points(block.center, block.radius, dim, dx)
+        if block.frame == "container":
+            c, R = container_frame(scene)
+            pts = c + (pts * scene.domain.scale) @ R.T
+        return pts
     if block.shape == "box":
         lo = np.array(block.min, dtype=float)
         hi = np.array(block.max, dtype=float)

@@ -90,6 +90,11 @@ class Block:
                       choices=("world", "container"))
     clip: bool = spec(False, "keep only the part of the block inside the domain (false: a block reaching outside "
                              "the container or a plane is an error naming how many particles fall outside)")
+    lattice: str = spec("cartesian", "how the block is filled: cartesian (a square / cubic lattice of the spacing) or "
+                        "polar (a sphere block only: rings about its centre in 2D, spherical shells in 3D, one "
+                        "spacing apart, each with as many points as its circumference / area holds; it fits "
+                        "circular walls about the same centre, which a cartesian lattice meets with gaps)",
+                        choices=("cartesian", "polar"))
 
 
 @dataclass(frozen=True)
@@ -952,6 +957,9 @@ def _check_combinations(s: Scene, files: bool = True) -> Scene:
             raise SceneError(f"{key}.max = {list(b.max)!r}: must exceed {key}.min = {list(b.min)!r} on every axis")
         if b.shape == "sphere" and b.radius <= 0:
             raise SceneError(f"{key}.radius = {b.radius!r}: a sphere block needs a positive radius")
+        if b.lattice == "polar" and b.shape != "sphere":
+            raise SceneError(f"{key}.lattice = 'polar': fills a sphere block (rings or shells about its centre); "
+                             f"this block's shape is {b.shape!r} (use lattice = 'cartesian')")
     for i, pl in enumerate(s.domain.planes):
         if math.hypot(*pl.normal) == 0:
             raise SceneError(f"domain.planes[{i}].normal = {list(pl.normal)!r}: must be non-zero")

@@ -24,7 +24,7 @@ PROMISED = {
     "floating_box_2d": (3_000, 5_000),   # "~4,000 particles"
     "cavity_2d": (1_900, 3_100),         # "2,500 particles"
     "channel_2d": (1_800, 3_000),        # "2400 particles"
-    "circular_couette_2d": (2_700, 4_500),  # "~3,600 particles"
+    "circular_couette_2d": (2_800, 4_700),  # "3,770 particles"
     "wave_maker_2d": (6_000, 10_000),    # "8,000 particles"
     "tiny": (100, 1_000),                # "Under 1,000 particles"
 }

@@ -158,12 +158,9 @@ def test_a_3d_rotation_turns_about_one_axis(tmp_path):
                                                 "obstacles[0].frequency=1"])
 
 
-def test_circular_couette_runs_and_reports_its_two_metrics(tmp_path):
-    """The case runs and says what it measured. Its metrics FAIL today (docs/VALIDATION.md: the
-    fluid leaves a gap at the concave outer wall, which then slips), so this test does not assert a
-    pass: it asserts that both are measured and that the turning wall drives the flow beside it
-    (the inner half of the gap within 10 % of the rim speed of the exact profile)."""
+def test_circular_couette_quick_meets_its_tolerance(tmp_path):
+    """The quick case (20 across, on the polar lattice) passes: 0.16 % of the rim speed on
+    2026-12-03 against the 3 % target (12.3 % on the clipped square lattice before)."""
     metrics = circular_couette(True, tmp_path, opts=CaseOptions(plot=False))
     assert [m.name for m in metrics] == ["circular_couette.velocity_error_of_U", "circular_couette.inner_half_error_of_U"]
-    assert all(np.isfinite(m.value) for m in metrics)
-    assert metrics[1].value < 0.1
+    assert all(m.passed for m in metrics), [m.line() for m in metrics]

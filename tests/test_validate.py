@@ -1,5 +1,7 @@
 """sph validate: one line per metric with its tolerance and verdict, a plot per case, the exit code
 follows the verdicts, and bad case names are refused."""
+import re
+
 import numpy as np
 import pytest
 
@@ -68,6 +70,14 @@ def test_the_front_speed_is_the_slope_between_the_late_points_whatever_the_shift
     assert front_speed(MARTIN_MOYCE_T, times, _front(times, 0.175)) == pytest.approx(measured, rel=1e-3)
     fast = 1.0 + 1.1 * (exact - 1.0)  # 10 % faster everywhere
     assert front_speed(MARTIN_MOYCE_T, times, fast, 0.0) == pytest.approx(1.1 * measured, rel=1e-3)
+
+
+def test_the_help_names_every_case(capsys):
+    from launch.validate import CASES
+    with pytest.raises(SystemExit):
+        main(["validate", "--help"])
+    words = set(re.findall(r"[a-z0-9_]+", capsys.readouterr().out))
+    assert set(CASES) <= words, set(CASES) - words
 
 
 def test_unknown_cases_are_refused(capsys):
