@@ -62,6 +62,7 @@ def test_the_largest_gap_is_half_a_diagonal_on_a_lattice_and_finds_a_hole():
     assert math.isclose(gap, dx / math.sqrt(2.0), rel_tol=1e-9)
 
 
+@pytest.mark.slow  # a validation case (a minute alone, two in a loaded CI): the slow tier, like `sph validate cavity --quick`; the metrics' pieces are tested above
 def test_cavity_centreline_profiles_meet_their_tolerance(tmp_path, capsys):
     # the quick case: 40 particles across, the profiles averaged over t = 5-10 s against Ghia et al.
     run_validate(["cavity"], quick=True, out=tmp_path)

@@ -3,6 +3,8 @@ elapsed time while it goes on, the total at the end; nothing for a function alre
 for a warm run (its literal dispatch fires short compile events)."""
 import time
 
+import pytest
+
 from launch.compiling import START, report_compiling
 
 
@@ -42,6 +44,8 @@ def test_a_run_whose_kernels_are_cached_says_nothing_about_compiling(tmp_path):
     assert "compil" not in done.stderr, done.stderr
 
 
+@pytest.mark.slow  # a cold compile of a scene's kernels (1.5-3 minutes): the slow tier; the default tier's
+# multi-process bitwise tests already compare processes that compiled kernels with processes that loaded them
 def test_the_process_that_compiles_the_kernels_gets_the_bits_of_every_process_that_loads_them(tmp_path):
     # Given an empty kernel cache and a scene whose neighbour passes reassociate their sums (numba's
     # JIT and its cache's object code once scheduled them differently: 3e-16 apart after 300 steps)

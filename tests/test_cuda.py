@@ -113,58 +113,83 @@ def test_peers_on_cuda_match_one_cpu_process(parity, case):
 
 PTX_CHECK = """
 import json, sys
+from sphcore import stages
 from sphcore.backends import cuda
-ptx = cuda.compile_all(dtype=sys.argv[1])
+dtype, part, parts = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+ptx = cuda.compile_all(dtype=dtype, stages=stages.STAGES[part::parts], binning=part == 0)
+if len(sys.argv) > 4:  # and one float64 kernel: the counter's own check (test_float32_kernels_compute_in_float32)
+    force = next(s for s in stages.STAGES if s.name == "forces")
+    default = {"kernel": 2, "viscosity": 1, "periodic": 0, "neighbours": 0}
+    ptx.update({"f64 " + k: v for k, v in cuda.compile_all(dtype="f64", stages=[force], binning=False,
+                                                        combinations=lambda s: [default]).items()})
 print(json.dumps({name: {"ok": ".target sm_90" in text and ".entry" in text,
                          "f64": cuda.float64_instructions(text)} for name, text in ptx.items()}))
 """
 # float64 instructions a float32 kernel may hold, each with the reason (tests/ptx_f64_in_f32.json)
 F64_ALLOWED = json.loads((ROOT / "tests" / "ptx_f64_in_f32.json").read_text())
+FORCES_DEFAULT = "forces kernel=2 viscosity=1 periodic=0 neighbours=0"
+
+
+def _compile_ptx(precision: str, probe_f64: bool = False) -> dict:
+    """{kernel label: {"ok", "f64"}} of every kernel in ``precision``, compiled to PTX for sm_90 in two
+    processes side by side, half the stages each (NVVM is the slow part and uses one core);
+    ``probe_f64`` adds the float64 build of the default force kernel as "f64 <label>"."""
+    runs = [subprocess.Popen([sys.executable, "-c", PTX_CHECK, precision, str(part), "2",
+                              *(["probe"] if probe_f64 and part == 1 else [])],
+                             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for part in (0, 1)]
+    out = {}
+    for run in runs:
+        text, err = run.communicate(timeout=1800)
+        assert run.returncode == 0, err[-3000:]
+        out.update(json.loads(text.strip().splitlines()[-1]))
+    return out
 
 
 @pytest.fixture(scope="module")
 def ptx():
-    """{precision: {kernel label: {"ok", "f64"}}} of every kernel, compiled to PTX for sm_90. The two
-    precisions compile side by side in two processes (NVVM is the slow part and uses one core)."""
-    runs = {p: subprocess.Popen([sys.executable, "-c", PTX_CHECK, p], cwd=ROOT, stdout=subprocess.PIPE,
-                                stderr=subprocess.PIPE, text=True) for p in ("f32", "f64")}
-    out = {}
-    for precision, run in runs.items():
-        text, err = run.communicate(timeout=1800)
-        assert run.returncode == 0, err[-3000:]
-        out[precision] = json.loads(text.strip().splitlines()[-1])
-    return out
+    """{"f32": every kernel's PTX check, and the float64 force kernel's}. The float64 build of every
+    kernel is the slow tier's (test_every_kernel_compiles_to_ptx_in_float64): the same row functions,
+    which float32 compiles already, at twice the suite's time."""
+    return {"f32": _compile_ptx("f32", probe_f64=True)}
 
 
-def test_every_kernel_compiles_to_ptx(ptx):
-    """The shared row functions are valid CUDA: every stage's kernel compiles for an H100 (sm_90), in
-    float32 and float64, with every value of every choice it takes (stages.covering_choices), and so
-    do the binning kernels."""
+def _check_compiled(compiled: dict, precision: str):
     from sphcore import stages
     expected = {s.name + "".join(f" {c}={v}" for c, v in combo.items())
                 for s in stages.STAGES for combo in stages.covering_choices(s)}
-    for precision, compiled in ptx.items():
-        assert expected <= set(compiled), (precision, expected - set(compiled))
-        # the default path of a scene (Wendland C2, Tait, artificial viscosity) is among them
-        assert "forces kernel=2 viscosity=1 periodic=0 neighbours=0" in compiled, precision
-        assert "density kernel=2 eos=1 periodic=0 neighbours=0 continuity=0" in compiled, precision
-        # and every neighbour pass compiles walking the cells as well
-        walking = {s.name for s in stages.STAGES if "neighbours" in s.choices}
-        assert walking == {k.split()[0] for k in compiled if " neighbours=1" in k}, precision
-        assert all(c["ok"] for c in compiled.values()), (precision, [k for k, c in compiled.items() if not c["ok"]])
+    assert expected <= set(compiled), (precision, expected - set(compiled))
+    # the default path of a scene (Wendland C2, Tait, artificial viscosity) is among them
+    assert FORCES_DEFAULT in compiled, precision
+    assert "density kernel=2 eos=1 periodic=0 neighbours=0 continuity=0" in compiled, precision
+    # and every neighbour pass compiles walking the cells as well
+    walking = {s.name for s in stages.STAGES if "neighbours" in s.choices}
+    assert walking == {k.split()[0] for k in compiled if " neighbours=1" in k and not k.startswith("f64 ")}, precision
+    assert all(c["ok"] for c in compiled.values()), (precision, [k for k, c in compiled.items() if not c["ok"]])
+
+
+def test_every_kernel_compiles_to_ptx(ptx):
+    """The shared row functions are valid CUDA: every stage's kernel compiles for an H100 (sm_90) in
+    float32, with every value of every choice it takes (stages.covering_choices), and so do the
+    binning kernels."""
+    _check_compiled(ptx["f32"], "f32")
+
+
+@pytest.mark.slow
+def test_every_kernel_compiles_to_ptx_in_float64():
+    _check_compiled(_compile_ptx("f64"), "f64")
 
 
 def test_float32_kernels_compute_in_float32(ptx):
     """No float64 instruction in a float32 kernel's PTX (Python float literals promote: physics/real.py)
     beyond the few tests/ptx_f64_in_f32.json lists, each with its reason; a kernel may hold fewer."""
     allowed = F64_ALLOWED["kernels"]
-    found = {k: c["f64"] for k, c in ptx["f32"].items()}
+    found = {k: c["f64"] for k, c in ptx["f32"].items() if not k.startswith("f64 ")}
     over = {k: (n, allowed.get(k, 0)) for k, n in found.items() if n > allowed.get(k, 0)}
     assert not over, f"float64 instructions in float32 kernels (found, allowed): {over}"
     for k in allowed:
         assert k.split()[0] in F64_ALLOWED["why"], f"{k}: no reason given for its float64 instructions"
     # the counter sees float64 where there is some: the float64 build of the force pass is full of it
-    assert ptx["f64"]["forces kernel=2 viscosity=1 periodic=0 neighbours=0"]["f64"] > 100
+    assert ptx["f32"]["f64 " + FORCES_DEFAULT]["f64"] > 100
 
 
 def test_importing_never_needs_cuda():

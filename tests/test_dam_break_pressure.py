@@ -54,6 +54,7 @@ def test_peak_and_impulse_of_a_triangle():
     assert peak_and_impulse(t, p, 2.0, 4.0)[2] == pytest.approx(1.0)
 
 
+@pytest.mark.slow  # a validation case (a minute alone): the slow tier; the record, the filter and the window's integrals are tested above
 def test_the_quick_case_runs_and_reports_honest_verdicts(tmp_path, capsys):
     # When the quick case runs (H / 40, 3,200 particles, about a minute on one thread)
     rc = main(["validate", "dam_break_pressure", "--quick", "--out", str(tmp_path)])

@@ -582,24 +582,14 @@ def float64_instructions(ptx: str) -> int:
     return len(_F64.findall(ptx))
 
 
-def compile_all(dtype="f32", cc=(9, 0), stages=None, combinations=covering_choices):
-    """Compile the kernels of ``stages`` (default: all) for every choice combination that
-    ``combinations(stage)`` lists (default: stages.covering_choices, every value of every choice),
-    and the binning kernels, to PTX for compute capability ``cc`` without running them (needs NVVM,
-    not a GPU): proves the shared row functions are valid CUDA. Returns {kernel label: PTX text}."""
+def _binning_signatures(t) -> dict:
+    """{label: (kernel, PTX signature)} of the neighbour-list and binning kernels."""
     from numba import types
-
-    t = argument_types(dtype)
     f, v1, v2, nbr = t["dt"], t["rho"], t["x"], t["nbr"]
     i1, i8v = t["counts"], types.Array(types.int64, 1, "C")
     n = types.int64
-    sigs = {}
-    for stage in (STAGES if stages is None else stages):
-        signature = stage_signature(stage, dtype)
-        for combo in combinations(stage):
-            label = stage.name + "".join(f" {c}={v}" for c, v in combo.items())
-            sigs[label] = (KERNELS[stage.name](*(combo[c] for c in stage.choices)), signature)
     cell_keys, scatter, sort_bins, cell_ranges = _binning_kernels()
+    sigs = {}
     for periodic in CHOICES["periodic"][0]:
         sigs[f"neighbours periodic={periodic}"] = (
             _neighbour_kernel(periodic), (n, v2, types.boolean, i8v, i8v, v1, v1, v1, i8v, v1, f, nbr, i1))
@@ -611,6 +601,24 @@ def compile_all(dtype="f32", cc=(9, 0), stages=None, combinations=covering_choic
         "max_int": (_max_int, (i1, n, i1)),
         "scan_chunks": (_scan_chunks, (i8v, n, n, i8v)),
     })
+    return sigs
+
+
+def compile_all(dtype="f32", cc=(9, 0), stages=None, combinations=covering_choices, binning=True):
+    """Compile the kernels of ``stages`` (default: all) for every choice combination that
+    ``combinations(stage)`` lists (default: stages.covering_choices, every value of every choice),
+    and (``binning``) the binning kernels, to PTX for compute capability ``cc`` without running them
+    (needs NVVM, not a GPU): proves the shared row functions are valid CUDA. Returns {kernel label:
+    PTX text}."""
+    t = argument_types(dtype)
+    sigs = {}
+    for stage in (STAGES if stages is None else stages):
+        signature = stage_signature(stage, dtype)
+        for combo in combinations(stage):
+            label = stage.name + "".join(f" {c}={v}" for c, v in combo.items())
+            sigs[label] = (KERNELS[stage.name](*(combo[c] for c in stage.choices)), signature)
+    if binning:
+        sigs.update(_binning_signatures(t))
     # Device functions called from a kernel (the non-inlined wall functions) are compiled for the
     # current device's compute capability; without a GPU there is none, so answer ``cc`` for it.
     import types as pytypes
