@@ -1,0 +1,56 @@
+"""Are the wave maker's heights (sph validate wave_maker, a 2 m flume) those of a steady wave train?
+The same piston in a 4 m flume, gauges at 0.3, 0.5, 1.0 and 1.5 m, the first-harmonic height
+(launch.validate.harmonic) over two windows, 3-7 T and 6-10 T, and the phase speed over the 0.5 m
+between the 0.5 m and 1.0 m gauges (k 0.5 m = 5.1 rad: one valued).
+
+    .venv/bin/python scripts/investigations/wave_maker_long_flume.py [--spacing 0.00667]
+
+About 5 minutes on 2 cores at the default (the validation's quick) spacing.
+"""
+import argparse
+import math
+
+import numpy as np
+
+from launch.validate import CONFIGS, Simulation, harmonic, load_scene, piston_height_per_stroke, water_wavenumber
+from sphcore.scene import scene_from_dict
+
+GAUGES = (0.3, 0.5, 1.0, 1.5)
+WINDOWS_T = ((3, 7), (6, 10))
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--spacing", type=float, default=0.1 / 15, help="particle spacing in m (depth 0.1 m)")
+    args = ap.parse_args()
+    base = load_scene(CONFIGS / "wave_maker_2d.toml", [f"particles.spacing={args.spacing}", "fluid.blocks[0].max=[4.0,0.1]",
+                                                       "domain.bounds_max=[4.0,0.25]", "domain.planes[1].point=[4.0,0.0]"])
+    data = base.to_dict()
+    data["probes"] = [{"name": f"G{x:g}", "kind": "height", "at": [x, 0.0]} for x in GAUGES]
+    scene = scene_from_dict(data, source=base.source)
+    piston = next(p for p in scene.domain.planes if p.frequency > 0.0)
+    depth, period = 0.1, 1.0 / piston.frequency
+    omega = 2.0 * math.pi * piston.frequency
+    k = water_wavenumber(omega, depth, 9.81)
+    height = 2.0 * abs(piston.amplitude[0]) * piston_height_per_stroke(k * depth)
+    sim = Simulation(scene, "f64")
+    print(f"{sim.n_particles} particles, 4 m flume, H of linear theory {100 * height:.2f} cm", flush=True)
+    t_end = WINDOWS_T[-1][1] * period
+    rows = []
+    while sim.t < t_end - 1e-12:
+        sim.step(dt_cap=t_end - sim.t)
+        rows += [(t, *v) for _, t, v in sim.probes.take_samples()]
+    rec = np.array(rows)
+    t = rec[:, 0]
+    print("| window | " + " | ".join(f"H / H_theory at {x:g} m" for x in GAUGES) + " | c, 0.5-1.0 m (theory "
+          f"{omega / k:.3f} m/s) |")
+    print("|---|" + "---|" * (len(GAUGES) + 1))
+    for lo, hi in WINDOWS_T:
+        w = (t >= lo * period - 1e-9) & (t <= hi * period + 1e-9)
+        fits = [harmonic(t[w], rec[w, 1 + j] - depth, omega) for j in range(len(GAUGES))]
+        c = omega * (GAUGES[2] - GAUGES[1]) / ((fits[2][1] - fits[1][1]) % (2.0 * math.pi))
+        print(f"| {lo}-{hi} T | " + " | ".join(f"{2 * a / height:.3f}" for a, _ in fits) + f" | {c:.3f} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
