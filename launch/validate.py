@@ -1136,6 +1136,37 @@ def harmonic(t, eta, omega: float, harmonics: int = 2) -> tuple[float, float]:
     return float(math.hypot(coef[1], coef[2])), float(math.atan2(coef[2], coef[1]))
 
 
+@dataclass(frozen=True)
+class PistonWave:
+    """What linear theory says of a scene's piston wave maker (its one plane with a frequency)."""
+    depth: float    # d (m): the still water's depth, the first block's height
+    period: float   # T (s)
+    omega: float    # 2 pi / T (1/s)
+    k: float        # wavenumber (1/m), the dispersion relation's
+    stroke: float   # S (m): twice the piston's amplitude along x
+    height: float   # H (m) = S H/S(kd)
+
+    @classmethod
+    def of(cls, scene) -> "PistonWave":
+        piston = next(p for p in scene.domain.planes if p.frequency > 0.0)
+        depth = scene.fluid.blocks[0].max[1] - scene.fluid.blocks[0].min[1]
+        omega = 2.0 * math.pi * piston.frequency
+        k = water_wavenumber(omega, depth, abs(scene.forces.gravity[1]))
+        stroke = 2.0 * abs(piston.amplitude[0])
+        return cls(depth, 1.0 / piston.frequency, omega, k, stroke, stroke * piston_height_per_stroke(k * depth))
+
+
+def probe_record(sim, t_end: float, clock=None) -> np.ndarray:
+    """Run ``sim`` to ``t_end`` and return its probes' samples, one row (t, value per probe) each."""
+    rows = []
+    while sim.t < t_end - 1e-12:
+        sim.step(dt_cap=t_end - sim.t)
+        if clock is not None:
+            clock.tick()
+        rows += [(t, *values) for _, t, values in sim.probes.take_samples()]
+    return np.array(rows)
+
+
 # The wave-maker's window, in periods of the piston: from 3 T (the wave train's front, moving at the
 # group speed 0.66 m/s, has passed the far gauge by 1.1 T and the piston's start-up by ~2 T more) to
 # 7 T (whole periods for the harmonic fit; the wave reflected by the far wall, 2 m away, reaches the
@@ -1153,25 +1184,17 @@ def wave_maker(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions |
     opts = opts or CaseOptions(backend)
     dx = opts.dx or (0.1 / 15 if quick else 0.1 / 30)  # 15 or 30 spacings over the depth
     scene = load_scene(CONFIGS / "wave_maker_2d.toml", [f"particles.spacing={dx}", *opts.overrides])
-    piston = next(p for p in scene.domain.planes if p.frequency > 0.0)
-    depth = scene.fluid.blocks[0].max[1] - scene.fluid.blocks[0].min[1]
-    g = abs(scene.forces.gravity[1])
-    period, stroke = 1.0 / piston.frequency, 2.0 * abs(piston.amplitude[0])
-    omega = 2.0 * math.pi * piston.frequency
-    k = water_wavenumber(omega, depth, g)
-    height, speed = stroke * piston_height_per_stroke(k * depth), omega / k
+    wave = PistonWave.of(scene)
+    depth, period, omega, k, stroke, height = (wave.depth, wave.period, wave.omega, wave.k, wave.stroke,
+                                               wave.height)
+    speed = omega / k
     names = [p.name for p in scene.probes]
     gauges = [p.at[0] for p in scene.probes]
     sim = Simulation(scene, opts.precision, opts.backend)
     t_end = WAVE_WINDOW_T[1] * period
     clock = _Clock(sim, opts, "wave_maker", t_end)
-    samples = []
-    while sim.t < t_end - 1e-12:
-        sim.step(dt_cap=t_end - sim.t)
-        clock.tick()
-        samples += [(t, *values) for step, t, values in sim.probes.take_samples()]
+    rec = probe_record(sim, t_end, clock)
     clock.done()
-    rec = np.array(samples)
     t = rec[:, 0]
     inside = t >= WAVE_WINDOW_T[0] * period - 1e-9
     etas = [rec[:, 1 + j] - depth for j in range(len(names))]  # the surface's elevation above still water

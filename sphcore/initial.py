@@ -47,14 +47,9 @@ def _polar_points(centre, radius: float, dim: int, dx: float) -> np.ndarray:
     return np.asarray(centre, dtype=float) + np.concatenate(out)
 
 
-def _block_points(block, scene: Scene, dx: float) -> np.ndarray:
-    dim = scene.dim
-    if block.lattice == "polar":  # a sphere block (scene validation)
-        pts = _polar_points(block.center, block.radius, dim, dx)
-        if block.frame == "container":
-            c, R = container_frame(scene)
-            pts = c + (pts * scene.domain.scale) @ R.T
-        return pts
+def _cartesian_points(block, dim: int, dx: float) -> np.ndarray:
+    """A block's cartesian lattice: points at min + (k + 1/2) dx over its bounding box, a sphere
+    block's cut to its radius."""
     if block.shape == "box":
         lo = np.array(block.min, dtype=float)
         hi = np.array(block.max, dtype=float)
@@ -70,6 +65,16 @@ def _block_points(block, scene: Scene, dx: float) -> np.ndarray:
         rel = pts - np.array(block.center)
         rel[:, dim:] = 0.0
         pts = pts[np.einsum("ij,ij->i", rel, rel) <= block.radius**2]
+    return pts
+
+
+def _block_points(block, scene: Scene, dx: float) -> np.ndarray:
+    """The block's lattice points (a polar lattice only for a sphere block: scene validation), in
+    world coordinates."""
+    if block.lattice == "polar":
+        pts = _polar_points(block.center, block.radius, scene.dim, dx)
+    else:
+        pts = _cartesian_points(block, scene.dim, dx)
     if block.frame == "container":
         c, R = container_frame(scene)
         pts = c + (pts * scene.domain.scale) @ R.T

@@ -117,11 +117,12 @@ from sphcore import stages
 from sphcore.backends import cuda
 dtype, part, parts = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
 ptx = cuda.compile_all(dtype=dtype, stages=stages.STAGES[part::parts], binning=part == 0)
-if len(sys.argv) > 4:  # and one float64 kernel: the counter's own check (test_float32_kernels_compute_in_float32)
-    force = next(s for s in stages.STAGES if s.name == "forces")
-    default = {"kernel": 2, "viscosity": 1, "periodic": 0, "neighbours": 0}
-    ptx.update({"f64 " + k: v for k, v in cuda.compile_all(dtype="f64", stages=[force], binning=False,
-                                                        combinations=lambda s: [default]).items()})
+if len(sys.argv) > 4:  # and one kernel by its label in float64: the counter's own check
+    name, *choices = sys.argv[4].split()
+    combo = {c: int(v) for c, v in (choice.split("=") for choice in choices)}
+    stage = next(s for s in stages.STAGES if s.name == name)
+    ptx.update({"f64 " + k: v for k, v in cuda.compile_all(dtype="f64", stages=[stage], binning=False,
+                                                        combinations=lambda s: [combo]).items()})
 print(json.dumps({name: {"ok": ".target sm_90" in text and ".entry" in text,
                          "f64": cuda.float64_instructions(text)} for name, text in ptx.items()}))
 """
@@ -135,7 +136,7 @@ def _compile_ptx(precision: str, probe_f64: bool = False) -> dict:
     processes side by side, half the stages each (NVVM is the slow part and uses one core);
     ``probe_f64`` adds the float64 build of the default force kernel as "f64 <label>"."""
     runs = [subprocess.Popen([sys.executable, "-c", PTX_CHECK, precision, str(part), "2",
-                              *(["probe"] if probe_f64 and part == 1 else [])],
+                              *([FORCES_DEFAULT] if probe_f64 and part == 1 else [])],
                              cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for part in (0, 1)]
     out = {}
     for run in runs:

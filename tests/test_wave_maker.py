@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from launch.validate import CONFIGS, harmonic, piston_height_per_stroke, water_wavenumber
+from launch.validate import CONFIGS, PistonWave, harmonic, piston_height_per_stroke, water_wavenumber
 from sphcore.scene import load_scene
 
 
@@ -53,7 +53,9 @@ def test_the_scene_is_the_case_the_theory_describes():
     scene = load_scene(CONFIGS / "wave_maker_2d.toml")
     piston = [p for p in scene.domain.planes if p.frequency > 0.0]
     assert len(piston) == 1 and piston[0].normal[0] == 1.0 and piston[0].phase == -90.0
-    depth = scene.fluid.blocks[0].max[1]
-    k = water_wavenumber(2.0 * math.pi * piston[0].frequency, depth, 9.81)
-    assert 0.9 < k * depth < 1.1  # intermediate depth, as the header says
+    wave = PistonWave.of(scene)
+    assert wave.depth == 0.1 and wave.stroke == pytest.approx(0.015)
+    assert 0.9 < wave.k * wave.depth < 1.1  # intermediate depth, as the header says
+    assert wave.height == pytest.approx(0.015 * piston_height_per_stroke(wave.k * wave.depth))
+    assert 9.81 * wave.k * math.tanh(wave.k * wave.depth) == pytest.approx(wave.omega ** 2)
     assert [p.kind for p in scene.probes] == ["height", "height"]

@@ -10,9 +10,8 @@ About 5 minutes on 2 cores at the default (the validation's quick) spacing.
 import argparse
 import math
 
-import numpy as np
 
-from launch.validate import CONFIGS, Simulation, harmonic, load_scene, piston_height_per_stroke, water_wavenumber
+from launch.validate import CONFIGS, PistonWave, Simulation, harmonic, load_scene, probe_record
 from sphcore.scene import scene_from_dict
 
 GAUGES = (0.3, 0.5, 1.0, 1.5)
@@ -28,28 +27,20 @@ def main():
     data = base.to_dict()
     data["probes"] = [{"name": f"G{x:g}", "kind": "height", "at": [x, 0.0]} for x in GAUGES]
     scene = scene_from_dict(data, source=base.source)
-    piston = next(p for p in scene.domain.planes if p.frequency > 0.0)
-    depth, period = 0.1, 1.0 / piston.frequency
-    omega = 2.0 * math.pi * piston.frequency
-    k = water_wavenumber(omega, depth, 9.81)
-    height = 2.0 * abs(piston.amplitude[0]) * piston_height_per_stroke(k * depth)
+    wave = PistonWave.of(scene)
     sim = Simulation(scene, "f64")
-    print(f"{sim.n_particles} particles, 4 m flume, H of linear theory {100 * height:.2f} cm", flush=True)
-    t_end = WINDOWS_T[-1][1] * period
-    rows = []
-    while sim.t < t_end - 1e-12:
-        sim.step(dt_cap=t_end - sim.t)
-        rows += [(t, *v) for _, t, v in sim.probes.take_samples()]
-    rec = np.array(rows)
+    print(f"{sim.n_particles} particles, 4 m flume, H of linear theory {100 * wave.height:.2f} cm", flush=True)
+    rec = probe_record(sim, WINDOWS_T[-1][1] * wave.period)
     t = rec[:, 0]
     print("| window | " + " | ".join(f"H / H_theory at {x:g} m" for x in GAUGES) + " | c, 0.5-1.0 m (theory "
-          f"{omega / k:.3f} m/s) |")
+          f"{wave.omega / wave.k:.3f} m/s) |")
     print("|---|" + "---|" * (len(GAUGES) + 1))
     for lo, hi in WINDOWS_T:
-        w = (t >= lo * period - 1e-9) & (t <= hi * period + 1e-9)
-        fits = [harmonic(t[w], rec[w, 1 + j] - depth, omega) for j in range(len(GAUGES))]
-        c = omega * (GAUGES[2] - GAUGES[1]) / ((fits[2][1] - fits[1][1]) % (2.0 * math.pi))
-        print(f"| {lo}-{hi} T | " + " | ".join(f"{2 * a / height:.3f}" for a, _ in fits) + f" | {c:.3f} |", flush=True)
+        w = (t >= lo * wave.period - 1e-9) & (t <= hi * wave.period + 1e-9)
+        fits = [harmonic(t[w], rec[w, 1 + j] - wave.depth, wave.omega) for j in range(len(GAUGES))]
+        c = wave.omega * (GAUGES[2] - GAUGES[1]) / ((fits[2][1] - fits[1][1]) % (2.0 * math.pi))
+        print(f"| {lo}-{hi} T | " + " | ".join(f"{2 * a / wave.height:.3f}" for a, _ in fits) + f" | {c:.3f} |",
+              flush=True)
 
 
 if __name__ == "__main__":
