@@ -165,6 +165,9 @@ CASES = {
     "continuity_f64": lambda: steps_case(scene("tiny.toml", "sph.density='continuity'"), "f64", 3),
     "dfsph_f64": lambda: steps_case(scene("tiny.toml", "sph.solver='dfsph'", "time.dt=0.002"), "f64", 3),
     "dfsph_peers_f64": lambda: peers_case(scene("tiny.toml", "sph.solver='dfsph'", "time.dt=0.002"), "f64", 2),
+    # the same in 2D (200 particles, ~20 neighbours each): a tenth of the 3D case's cost in the simulator
+    "dfsph_peers_2d_f64": lambda: peers_case(scene("dam_break_2d.toml", "particles.spacing=0.02", "sph.solver='dfsph'",
+                                                   "time.dt=0.002"), "f64", 3),
     # the cell walk (run.neighbours = "walk"): every neighbour pass walks the cells on the device
     "walk_terms_f64": lambda: steps_case(scene("tiny.toml", "run.neighbours='walk'", "terms.xsph=0.3",
                                                "terms.surface_tension=0.05", "terms.vorticity_confinement=0.01",

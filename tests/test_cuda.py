@@ -30,14 +30,15 @@ TOL = {"f64": {"x": 1e-12, "v": 1e-12, "rho": 1e-12, "p": 1e-12, "a": 1e-11},
 
 
 # The cases, each tier in two groups of about equal cost run side by side (the suite's other tests
-# wait for the fixture, so the second core would otherwise idle through it). In the simulator a DFSPH
-# case costs ~4 minutes on one core of the development machine (every solver iteration launches its
-# kernels over ~500 threads of Python), 5x a WCSPH case: the default tier runs DFSPH on the device
-# once, across two peers; the slow tier adds DFSPH on one process and walking, and the obstacle and
-# the carried density's own cases (walk_terms_f64 carries the density already).
-GROUPS = (["dfsph_peers_f64", "tiny_f64", "terms_f64", "open_f64", "rotating_f64"],
+# wait for the fixture, so the second core would otherwise idle through it). In the simulator a 3D
+# DFSPH case costs ~4 minutes on one core of the development machine (every solver iteration
+# launches its kernels over ~500 threads of Python), 5x a WCSPH case: the default tier runs DFSPH on
+# the device across two peers in 2D (~1 minute); the slow tier adds the 3D DFSPH cases (one process,
+# two peers, two walking peers), the obstacle and the carried density's own case (walk_terms_f64
+# carries the density already).
+GROUPS = (["dfsph_peers_2d_f64", "tiny_f64", "terms_f64", "open_f64", "rotating_f64"],
           ["tiny_f32", "periodic_f64", "peers_f64", "walk_terms_f64", "moving_walls_f64", "floating_f64"])
-SLOW_GROUPS = (["dfsph_f64", "continuity_f64"], ["walk_dfsph_peers_f64", "obstacle_f64"])
+SLOW_GROUPS = (["dfsph_f64", "dfsph_peers_f64", "continuity_f64"], ["walk_dfsph_peers_f64", "obstacle_f64"])
 
 
 def _parity(simulator: bool, groups=GROUPS) -> dict:
@@ -113,8 +114,9 @@ def test_more_options_match_cpu(slow_parity, case):
 
 
 @pytest.mark.slow
-def test_walking_dfsph_peers_on_cuda_match_one_cpu_process(slow_parity):
-    r = slow_parity["walk_dfsph_peers_f64"]
+@pytest.mark.parametrize("case", ["dfsph_peers_f64", "walk_dfsph_peers_f64"])
+def test_3d_dfsph_peers_on_cuda_match_one_cpu_process(slow_parity, case):
+    r = slow_parity[case]
     assert r["ghosts"] > 0
     _check(r, "f64", ("x", "v", "rho"))
 
@@ -127,7 +129,7 @@ def test_inlets_and_outlets_on_cuda_match_cpu(parity):
     _check(r, "f64")
 
 
-@pytest.mark.parametrize("case", ["peers_f64", "dfsph_peers_f64"])
+@pytest.mark.parametrize("case", ["peers_f64", "dfsph_peers_2d_f64"])
 def test_peers_on_cuda_match_one_cpu_process(parity, case):
     r = parity[case]
     assert r["ghosts"] > 0  # the halo really carried particles
