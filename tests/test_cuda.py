@@ -82,6 +82,12 @@ def _check(result: dict, precision: str, fields=("x", "v", "rho", "p", "a")):
         assert result[f] <= TOL[precision][f], (f, result[f])
 
 
+def _check_peers(result: dict):
+    """Two CUDA peers against one CPU process (tests/cuda_parity.peers_case)."""
+    assert result["ghosts"] > 0  # the halo really carried particles
+    _check(result, "f64", ("x", "v", "rho"))
+
+
 def test_stages_match_cpu(parity):
     r = parity["tiny_f64"]
     # binning and neighbour search are exact: same (cell, id) order, same lists in the same order
@@ -116,9 +122,7 @@ def test_more_options_match_cpu(slow_parity, case):
 @pytest.mark.slow
 @pytest.mark.parametrize("case", ["dfsph_peers_f64", "walk_dfsph_peers_f64"])
 def test_3d_dfsph_peers_on_cuda_match_one_cpu_process(slow_parity, case):
-    r = slow_parity[case]
-    assert r["ghosts"] > 0
-    _check(r, "f64", ("x", "v", "rho"))
+    _check_peers(slow_parity[case])
 
 
 def test_inlets_and_outlets_on_cuda_match_cpu(parity):
@@ -131,9 +135,7 @@ def test_inlets_and_outlets_on_cuda_match_cpu(parity):
 
 @pytest.mark.parametrize("case", ["peers_f64", "dfsph_peers_2d_f64"])
 def test_peers_on_cuda_match_one_cpu_process(parity, case):
-    r = parity[case]
-    assert r["ghosts"] > 0  # the halo really carried particles
-    _check(r, "f64", ("x", "v", "rho"))
+    _check_peers(parity[case])
 
 
 PTX_CHECK = """
@@ -254,9 +256,8 @@ def test_parity_on_a_real_gpu():
     _check(results["tiny_f32"], "f32")
     for case in ("terms_f64", "periodic_f64", "obstacle_f64", "dfsph_f64", "continuity_f64"):
         _check(results[case], "f64")
-    for case in ("peers_f64", "dfsph_peers_f64"):
-        assert results[case]["ghosts"] > 0
-        _check(results[case], "f64", ("x", "v", "rho"))
+    for case in ("peers_f64", "dfsph_peers_f64", "dfsph_peers_2d_f64"):
+        _check_peers(results[case])
 
 
 @pytest.mark.gpu
