@@ -224,7 +224,7 @@ BETA_MAX = 3.0  # caps the no-slip extrapolation z / d (Morris et al. 1997 use 1
 
 
 def wall_tables(kernel: Kernel, dim: int, H: float, dx: float, per_half_spacing: int = 64) -> np.ndarray:
-    """Wall tables on d in [0, table_end(H, dx)]: rows Phi(d), G0(d), G1(d), G2(d) (see
+    """Wall tables on d in [0, table_end(H, dx)]: rows Phi(d), G0(d), G1(d), G2(d), Gv(d), omega(d) (see
     sphcore.physics.walls). Samples are dx / (2 per_half_spacing) apart, so d = dx/2 — a lattice
     particle next to a wall — is a sample and is looked up exactly.
 
@@ -240,6 +240,10 @@ def wall_tables(kernel: Kernel, dim: int, H: float, dx: float, per_half_spacing:
         G2(d)  = sum_virtual W'(r) t^2 / r / S        (... along one tangential axis t)
         Gv(d)  = sum_virtual W'(r) r / (r^2 + eta^2) beta / S,  eta^2 = 0.01 h^2, h = H/2,
                  beta = min(BETA_MAX, z / d)             (no-slip viscous wall, Morris et al. 1997)
+        omega(d) = S dx^(dim-1) L(d) / sum_k L((k + 1/2) dx),  L(d) = sum_lateral W(sqrt(l^2 + d^2))
+                 (the wall stress's share at distance d, 1/m: a lattice column's particles, of mass
+                 rho0 / S each, take exactly the stress of their wall area dx^(dim-1);
+                 physics/wall_friction.py)
     """
     s_w, s_g, _ = kernel_constants(kernel, dim, H)
     s_g /= lattice_gradient_moment(kernel, dim, H, dx)  # the calibrated gradient (see that function)
@@ -257,7 +261,7 @@ def wall_tables(kernel: Kernel, dim: int, H: float, dx: float, per_half_spacing:
     S = float(sum(wv(r).sum() for r in full))
     end = table_end(H, dx)
     size = int(round(end / (0.5 * dx))) * per_half_spacing + 1
-    out = np.zeros((5, size))
+    out = np.zeros((6, size))
     eta2 = 0.01 * (0.5 * H) ** 2
     for i, d in enumerate(np.linspace(0.0, end, size)):
         for k in range(K + 1):
@@ -273,6 +277,10 @@ def wall_tables(kernel: Kernel, dim: int, H: float, dx: float, per_half_spacing:
             # Morris: the virtual particle moves with -(z - d)/d v_i, so v_i - v_j = (z / d) v_i
             beta = min(BETA_MAX, z / d) if d > 0.0 else BETA_MAX
             out[4, i] += (gv(r) * r / (r * r + eta2)).sum() * beta
+        if d < H:
+            out[5, i] = wv(np.sqrt(l2 + d * d)).sum()
+    column = sum(wv(np.sqrt(l2 + z * z)).sum() for z in (np.arange(K + 1) + 0.5) * dx if z < H)
+    out[5] *= S * S * dx ** (dim - 1) / column  # omega, after the division by S below
     return out / S
 
 

@@ -164,6 +164,10 @@ class Terms:
                                         control=LIVE)
     drag: float = spec(0.0, "linear drag k in 1/s, a += -k v: damps a flow to rest, e.g. to settle a tank before "
                        "a run (0 = off; keep k dt < 1)", range=(0.0, 1.0e4), control=LIVE)
+    wall_friction: float = spec(0.0, "turbulent wall friction: the kinematic viscosity nu (m^2/s) of a smooth-wall "
+                                "law (Spalding's) that sets every wall's shear stress from the slip of the "
+                                "particles next to it (water 1e-6; 0 = off, free-slip or Morris walls as they are)",
+                                range=(0.0, 1.0e3), control=LIVE)
 
 
 @dataclass(frozen=True)

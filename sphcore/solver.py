@@ -386,8 +386,8 @@ class Simulation:
         self._run(st.FORCES, prm=prm)                              # x, v, rho, p     -> a
         if self.use_diffusion:
             self._run(st.DIFFUSION, prm=prm)                       # x, m, rho        -> delta-SPH drho
-        for term, value in self.force_terms:                       # surface tension, drag: a (+=)
-            self._run(term, prm=prm, coefficient=self.dtype.type(value))
+        for term, value in self.force_terms:                       # surface tension, drag, wall friction: a (+=)
+            self._run(term, prm=prm, coefficient=self.dtype.type(value), dt_prev=self.dtype.type(self.dt_prev))
         if self.use_vorticity:
             self._run(st.VORTICITY, prm=prm)                       # x, v, rho        -> omega
             omega = self.engine.fetch("omega")

@@ -38,6 +38,7 @@ from sphcore.physics.open_boundary import open_boundary_row, outlet_pressure_row
 from sphcore.physics.shifting import shifting_row
 from sphcore.physics.surface_tension import surface_tension_row
 from sphcore.physics.vorticity import confinement_row, vorticity_row
+from sphcore.physics.wall_friction import wall_friction_row
 from sphcore.physics.xsph import xsph_row
 
 # Compile-time choices: name -> (the values a scene can select, the default the PTX check starts from,
@@ -214,6 +215,7 @@ DIFFUSION = Stage("diffusion", diffusion_row, writes=("drho",)).check()
 SURFACE_TENSION = Stage("surface_tension", surface_tension_row, writes=("a",),
                         key="terms.surface_tension").check()
 DRAG = Stage("drag", drag_row, writes=("a",), key="terms.drag").check()
+WALL_FRICTION = Stage("wall_friction", wall_friction_row, writes=("a",), key="terms.wall_friction").check()
 VORTICITY = Stage("vorticity", vorticity_row, writes=("omega",)).check()
 CONFINEMENT = Stage("confinement", confinement_row, writes=("a",)).check()
 XSPH = Stage("xsph", xsph_row, writes=("dv",)).check()
@@ -233,7 +235,7 @@ BOUNDARIES = Stage("boundaries", boundaries_row, writes=("x", "v"), reduce=("sum
 BODY_REACTION = Stage("body_reaction", body_reaction_row, writes=(), reduce=("sum", "sum", "sum")).check()  # F
 
 # Force terms: each adds to a after FORCES, in this order, when its scene key is > 0
-FORCE_TERMS = (SURFACE_TENSION, DRAG)
+FORCE_TERMS = (SURFACE_TENSION, DRAG, WALL_FRICTION)
 
 STAGES = (DENSITY, OUTLET_PRESSURE, DFSPH_FACTOR, FORCES, DIFFUSION, *FORCE_TERMS, VORTICITY, CONFINEMENT, XSPH, SHIFTING,
           OPEN_BOUNDARY, STATISTICS, DFSPH_KICK, DFSPH_SOURCE, DFSPH_UPDATE, DFSPH_FINISH, DENSITY_UPDATE, INTEGRATE, BOUNDARIES,

@@ -174,10 +174,12 @@ CASES = {
                                                "terms.surface_tension=0.05", "terms.vorticity_confinement=0.01",
                                                "sph.density='continuity'"), "f64", 2),
     # moving walls (motion.py): a sliding plate with the Morris no-slip wall, oscillating across the
-    # channel so that the wall's velocity and acceleration both enter (viscous drag, pressure, collision)
+    # channel so that the wall's velocity and acceleration both enter (viscous drag, pressure, collision),
+    # and the turbulent wall friction's law of the wall on the slip relative to each plate
     "moving_walls_f64": lambda: steps_case(scene("couette_2d.toml", "particles.spacing=5e-5",
                                                  "domain.planes[1].amplitude=[0, 2e-5]",
-                                                 "domain.planes[1].frequency=10"), "f64", 3),
+                                                 "domain.planes[1].frequency=10", "terms.wall_friction=1e-6"),
+                                           "f64", 3),
     # a floating body: its force, the reaction to its wall's terms, reduced on the device
     "floating_f64": lambda: steps_case(scene("floating_box_2d.toml", "particles.spacing=0.04",
                                              "forces.ramp_time=0.001"), "f64", 5),
