@@ -99,7 +99,7 @@ def resumed_with(sc, out, step, text, steps=STEPS):
 
 # (the scene's overrides that make the key matter, KEY=VALUE, whether the final state must differ)
 TERMS = ("terms.xsph=0.1", "terms.shifting=1.0", "terms.surface_tension=0.01", "terms.vorticity_confinement=0.1",
-         "terms.drag=0.5")
+         "terms.drag=0.5", "terms.wall_friction=1e-6")
 DFSPH = ("sph.solver=dfsph",)
 INTO_WALLS = ("fluid.blocks[0].velocity=[-3.0, -3.0, 0.0]",)  # the pool thrown at two walls: wall contacts
 CASES = {
@@ -118,6 +118,7 @@ CASES = {
     "terms.surface_threshold": (TERMS, "terms.surface_threshold=0.5", True),
     "terms.vorticity_confinement": (TERMS, "terms.vorticity_confinement=0.5", True),
     "terms.drag": (TERMS, "terms.drag=2.0", True),
+    "terms.wall_friction": (TERMS, "terms.wall_friction=1e-3", True),
     "forces.gravity": ((), "forces.gravity=[1.0, -9.81, 0.0]", True),
     "forces.external": ((), "forces.external=[2.0, 0.0, 0.0]", True),
     "forces.ramp_time": ((), "forces.ramp_time=0.05", True),
@@ -151,6 +152,7 @@ def test_every_live_key_has_a_case():
 # a term switched on or off: a restart in place from the current state (Simulation.change_scene)
 SWITCHES = {
     "terms.drag on": ((), "terms.drag=1.0", True),
+    "terms.wall_friction on": ((), "terms.wall_friction=1e-4", True),
     "terms.xsph on": ((), "terms.xsph=0.2", True),
     "terms.vorticity_confinement on": ((), "terms.vorticity_confinement=0.2", True),
     "terms.surface_tension on": ((), "terms.surface_tension=0.05", True),
