@@ -49,6 +49,7 @@ class Params(NamedTuple):
     dfsph_d0: float     # DFSPH diagonal of a full neighbourhood (boundaries.lattice_pressure_diagonal; kg^2/m^8 in 3D)
     dfsph_omega: float  # DFSPH Jacobi relaxation (physics/dfsph.relaxation)
     delta_hc0: float    # delta-SPH diffusion factor delta h c0 (m^2/s; physics/continuity.py)
+    wall_nu: float      # the walls' turbulent friction: nu of its law of the wall (m^2/s; 0 = off; physics/wall_friction.py)
 
 
 def make_params(dtype, **values) -> Params:

@@ -341,7 +341,8 @@ class Simulation:
         for k, body in enumerate(self.model.walls.bodies):
             quantum = self.dtype.type(body.quantum((prm.gravity_x + prm.external_x, prm.gravity_y + prm.external_y,
                                                     prm.gravity_z + prm.external_z)))  # the kernel's, exactly
-            units = self._run(st.BODY_REACTION, prm=prm, wall=body.wall, quantum=quantum)
+            units = self._run(st.BODY_REACTION, prm=prm, wall=body.wall, quantum=quantum,
+                              dt_prev=self.dtype.type(self.dt_prev))
             quantum = float(quantum)
             units = yield from halo.reduce_sums(self, f"body{k}", units)
             forces.append(np.array(units, dtype=np.float64) * quantum)

@@ -104,3 +104,27 @@ def test_a_sliding_plate_pulls_the_fluid_by_the_law_of_the_wall_and_a_still_one_
     # and the plate at rest leaves the fluid at rest next to it alone, as does the bulk (what is left
     # there is the round-off of the lattice's pressure forces)
     assert np.abs(ax[~top]).max() < 1e-9 * ax[top].max()
+
+
+def test_a_floating_body_feels_the_reaction_to_its_walls_friction():
+    # Given a floating box sliding at 0.3 m/s through water at rest, no gravity: with the walls'
+    # friction on, and off (the container's walls see no slip, so only the box's wall rubs)
+    sims = {}
+    for nu in (0.0, 1.0e-6):
+        sc = load_scene(CONFIGS / "floating_box_2d.toml", ["particles.spacing=0.02", "forces.gravity=[0.0, 0.0]",
+                                                          "obstacles[0].free=[true, true]", f"terms.wall_friction={nu}"])
+        sim = Simulation(sc, "f64")
+        sim.model.walls.bodies[0].v = np.array([0.3, 0.0, 0.0])
+        sim.step()
+        sims[nu] = sim
+    off, on = sims[0.0], sims[1.0e-6]
+    n = on.state.n_owned
+    # When the step has computed the fluid's accelerations and the body's force
+    assert np.array_equal(on.state.id[:n], off.state.id[:n])
+    pull = (on.state.m[:n, None] * (on.state.a[:n] - off.state.a[:n])).sum(axis=0)  # the friction on the fluid
+    body = on.model.walls.bodies[0]
+    quantum = body.quantum((0.0, 0.0, 0.0))
+    # Then the fluid is pulled along the box's motion and the box is held back by exactly as much
+    # (Newton's third law, to the exact sum's unit per row)
+    assert pull[0] > 1e3 * n * quantum
+    assert np.abs(body.force - off.model.walls.bodies[0].force + pull).max() <= n * quantum

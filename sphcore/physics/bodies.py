@@ -4,9 +4,10 @@ A floating obstacle (sphcore/motion.py FloatingBody) is an analytic wall like an
 the particles near it with the wall pressure term and, with the Morris viscosity, drags them with
 the no-slip term (physics/walls.py). By Newton's third law the fluid pushes the body back with
 
-    F = - sum_i m_i theta_i (a_i^wall pressure + a_i^wall viscous)     (that one wall's terms)
+    F = - sum_i m_i (theta_i (a_i^wall pressure + a_i^wall viscous) + a_i^wall friction)     (that one wall's terms)
 
-(theta_i the fill fraction, as in the forces pass). Each row returns its share in integer units of
+(theta_i the fill fraction, as in the forces pass; the turbulent friction of terms.wall_friction,
+physics/wall_friction.py, is not scaled by it there, nor here). Each row returns its share in integer units of
 ``quantum`` newtons (N/m in 2D), so the sum over rows — and over peers, ``PeerHalo.reduce_sums`` —
 is exact and independent of the order: every peer moves the body by the same bits. Where the body
 meets another wall the corner correction of the walls' terms is not in F (the single-wall terms
@@ -17,6 +18,7 @@ from numba import njit
 
 from sphcore.physics.external import body_acceleration_at
 from sphcore.physics.real import like
+from sphcore.physics.wall_friction import wall_friction_acceleration
 from sphcore.physics.walls import wall_terms, wall_viscosity
 
 
@@ -31,7 +33,7 @@ def _units(value, quantum):
 
 @njit(cache=True, inline="always")
 def body_reaction_row(kernel, viscosity, prm, i, x, v, m, rho, p, wall_kind, wall_data, wall_tables, wall_motion,
-                      fill, wall, quantum):
+                      fill, dt_prev, wall, quantum):
     """Row i's share of the fluid's force on the body of wall row ``wall``: (Fx, Fy, Fz) in units of
     ``quantum`` N.   (module docstring)"""
     bx, by, bz = body_acceleration_at(prm, x[i, 0], x[i, 1], x[i, 2])
@@ -46,4 +48,12 @@ def body_reaction_row(kernel, viscosity, prm, i, x, v, m, rho, p, wall_kind, wal
         ay += kv * v[i, 1] - uy
         az += kv * v[i, 2] - uz
     share = -m[i] * fill[i]
-    return _units(share * ax, quantum), _units(share * ay, quantum), _units(share * az, quantum)
+    fx, fy, fz = share * ax, share * ay, share * az
+    if prm.wall_nu > 0.0:  # the walls' turbulent friction on row i from this wall
+        tx, ty, tz = wall_friction_acceleration(prm, wall_kind[q0:q1], wall_data[q0:q1], wall_tables, wall_motion[q0:q1],
+                                                x[i, 0], x[i, 1], x[i, 2], v[i, 0], v[i, 1], v[i, 2], prm.wall_nu,
+                                                dt_prev)
+        fx -= m[i] * tx
+        fy -= m[i] * ty
+        fz -= m[i] * tz
+    return _units(fx, quantum), _units(fy, quantum), _units(fz, quantum)

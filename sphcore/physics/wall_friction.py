@@ -73,17 +73,19 @@ def spalding_u_plus(R):
 
 
 @njit(cache=True, inline="always")
-def wall_friction_row(prm, i, x, v, wall_kind, wall_data, wall_tables, wall_motion, dt_prev, coefficient, a):
-    """a_i += -u_tau^2 omega(d) t per wall within reach (nu = ``coefficient``).   (wall_friction.py)"""
-    nu = coefficient
-    xi, yi, zi = x[i, 0], x[i, 1], x[i, 2]
-    for q in range(wall_kind.shape[0]):
-        d, nx, ny, nz = signed_distance(wall_kind[q], wall_data[q], xi, yi, zi)
+def wall_friction_acceleration(prm, kinds, data, tables, motion, x, y, z, vx, vy, vz, nu, dt_prev):
+    """(ax, ay, az) = -sum over the walls q within reach of u_tau^2 omega(d_q) t_q at (x, y, z) moving
+    at (vx, vy, vz) (module docstring); a floating body's reaction sums it over its own wall alone."""
+    ax = like(nu, 0.0)
+    ay = like(nu, 0.0)
+    az = like(nu, 0.0)
+    for q in range(kinds.shape[0]):
+        d, nx, ny, nz = signed_distance(kinds[q], data[q], x, y, z)
         if d >= prm.wall_table_end:
             continue
-        omega = table_lookup(wall_tables[OMEGA_ROW], d, prm.wall_table_end)
-        uwx, uwy, uwz = wall_point_velocity(wall_motion, q, xi - d * nx, yi - d * ny, zi - d * nz)
-        sx, sy, sz = v[i, 0] - uwx, v[i, 1] - uwy, v[i, 2] - uwz
+        omega = table_lookup(tables[OMEGA_ROW], d, prm.wall_table_end)
+        uwx, uwy, uwz = wall_point_velocity(motion, q, x - d * nx, y - d * ny, z - d * nz)
+        sx, sy, sz = vx - uwx, vy - uwy, vz - uwz
         sn = sx * nx + sy * ny + sz * nz
         sx -= sn * nx
         sy -= sn * ny
@@ -91,11 +93,22 @@ def wall_friction_row(prm, i, x, v, wall_kind, wall_data, wall_tables, wall_moti
         U = math.sqrt(sx * sx + sy * sy + sz * sz)
         if U == 0.0 or omega <= 0.0:
             continue
-        y = max(d, like(d, 0.5) * prm.dx)
-        u_tau = U / spalding_u_plus(y * U / nu)
+        yw = max(d, like(d, 0.5) * prm.dx)
+        u_tau = U / spalding_u_plus(yw * U / nu)
         k = u_tau * u_tau * omega / U   # the drag rate (1/s) on the slip
         if dt_prev > 0.0:
             k = min(k, like(k, 1.0) / dt_prev)
-        a[i, 0] -= k * sx
-        a[i, 1] -= k * sy
-        a[i, 2] -= k * sz
+        ax -= k * sx
+        ay -= k * sy
+        az -= k * sz
+    return ax, ay, az
+
+
+@njit(cache=True, inline="always")
+def wall_friction_row(prm, i, x, v, wall_kind, wall_data, wall_tables, wall_motion, dt_prev, coefficient, a):
+    """a_i += -u_tau^2 omega(d) t per wall within reach (nu = ``coefficient``, = prm.wall_nu).   (wall_friction.py)"""
+    ax, ay, az = wall_friction_acceleration(prm, wall_kind, wall_data, wall_tables, wall_motion, x[i, 0], x[i, 1],
+                                            x[i, 2], v[i, 0], v[i, 1], v[i, 2], coefficient, dt_prev)
+    a[i, 0] += ax
+    a[i, 1] += ay
+    a[i, 2] += az
