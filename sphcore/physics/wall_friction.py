@@ -31,6 +31,9 @@ sum_k m a_k = -rho0 u_tau^2 dx^(dim-1) t: the wall stress tau_w = rho0 u_tau^2 o
 y_i = max(d_i, dx / 2): a particle is a layer of fluid one spacing thick, and one pressed closer than
 the first lattice row still stands for that layer.
 
+A floating body's wall takes the reaction: physics/bodies.py adds -m_i times this term of the body's
+wall alone to the fluid's force on it, so the pair conserves momentum.
+
 Stability: the term is a drag -k (v_i - u_w) with k = u_tau^2 omega / U; explicit, it must not
 reverse the slip within a step, so k is capped at 1 / dt_prev (the previous step; the step's own dt
 is chosen after the forces). At the validation cases' values k dt is ~1e-4, far below the cap.
