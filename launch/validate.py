@@ -236,7 +236,8 @@ def dam_break(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions | 
                               f"dZ/dT {speed:.3f} against the measured {measured:.3f}, "
                               f"T = {t_exp[LATE[0]]:.2f}-{t_exp[LATE[1]]:.2f}"))
     opts.stats.update(front_rms_raw=raw, front_delay_fitted_T=delay, front_rms_fitted=fitted,
-                      front_at_points=np.interp(t_exp - shift, times, fronts).tolist(), front_T=times, front_Z=fronts)
+                      front_at_points=np.interp(t_exp - shift, times, fronts).tolist(), front_T=times, front_Z=fronts,
+                      front_speed=speed if len(t_exp) > LATE[1] else float("nan"))
     if not opts.plot:
         return metrics
     plt = _plot()

@@ -29,7 +29,7 @@ def main():
     for k, (label, override) in enumerate(runs.items()):
         opts = CaseOptions(dx=args.dx, overrides=(override,), plot=False)
         metrics = dam_break(False, Path("."), opts=opts)
-        rms, speed = metrics[0].value, metrics[1].note.split()[1]
+        rms, speed = metrics[0].value, f"{opts.stats['front_speed']:.3f}"
         T = np.asarray(opts.stats["front_T"]) + MARTIN_MOYCE_SHIFT_T
         ax.plot(T, opts.stats["front_Z"], color=f"C{k}",
                 label=f"{label}: RMS {100 * rms:.1f} %, late dZ/dT {speed}")

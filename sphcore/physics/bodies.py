@@ -51,8 +51,7 @@ def body_reaction_row(kernel, viscosity, prm, i, x, v, m, rho, p, wall_kind, wal
     fx, fy, fz = share * ax, share * ay, share * az
     if prm.wall_nu > 0.0:  # the walls' turbulent friction on row i from this wall
         tx, ty, tz = wall_friction_acceleration(prm, wall_kind[q0:q1], wall_data[q0:q1], wall_tables, wall_motion[q0:q1],
-                                                x[i, 0], x[i, 1], x[i, 2], v[i, 0], v[i, 1], v[i, 2], prm.wall_nu,
-                                                dt_prev)
+                                                x[i, 0], x[i, 1], x[i, 2], v[i, 0], v[i, 1], v[i, 2], dt_prev)
         fx -= m[i] * tx
         fy -= m[i] * ty
         fz -= m[i] * tz

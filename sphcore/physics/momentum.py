@@ -14,7 +14,6 @@ from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
 from sphcore.physics.pressure import pressure_pair
 from sphcore.physics.viscosity import artificial_pair, morris_pair, muller_pair
 from sphcore.physics.walls import wall_terms, wall_viscosity
-from sphcore.physics.real import like
 
 
 @njit(cache=True, inline="always")

@@ -76,9 +76,11 @@ def spalding_u_plus(R):
 
 
 @njit(cache=True, inline="always")
-def wall_friction_acceleration(prm, kinds, data, tables, motion, x, y, z, vx, vy, vz, nu, dt_prev):
+def wall_friction_acceleration(prm, kinds, data, tables, motion, x, y, z, vx, vy, vz, dt_prev):
     """(ax, ay, az) = -sum over the walls q within reach of u_tau^2 omega(d_q) t_q at (x, y, z) moving
-    at (vx, vy, vz) (module docstring); a floating body's reaction sums it over its own wall alone."""
+    at (vx, vy, vz), nu = prm.wall_nu (module docstring); a floating body's reaction sums it over its
+    own wall alone."""
+    nu = prm.wall_nu
     ax = like(nu, 0.0)
     ay = like(nu, 0.0)
     az = like(nu, 0.0)
@@ -108,10 +110,10 @@ def wall_friction_acceleration(prm, kinds, data, tables, motion, x, y, z, vx, vy
 
 
 @njit(cache=True, inline="always")
-def wall_friction_row(prm, i, x, v, wall_kind, wall_data, wall_tables, wall_motion, dt_prev, coefficient, a):
-    """a_i += -u_tau^2 omega(d) t per wall within reach (nu = ``coefficient``, = prm.wall_nu).   (wall_friction.py)"""
+def wall_friction_row(prm, i, x, v, wall_kind, wall_data, wall_tables, wall_motion, dt_prev, a):
+    """a_i += -u_tau^2 omega(d) t per wall within reach (nu = prm.wall_nu, terms.wall_friction).   (wall_friction.py)"""
     ax, ay, az = wall_friction_acceleration(prm, wall_kind, wall_data, wall_tables, wall_motion, x[i, 0], x[i, 1],
-                                            x[i, 2], v[i, 0], v[i, 1], v[i, 2], coefficient, dt_prev)
+                                            x[i, 2], v[i, 0], v[i, 1], v[i, 2], dt_prev)
     a[i, 0] += ax
     a[i, 1] += ay
     a[i, 2] += az
