@@ -1,6 +1,6 @@
 # The two commands of the README:
 #   make demo   set up .venv and run the demo scene (3D dam break, ~49k particles, to t = 0.4 s, 2 peer processes + viewer) into runs/demo
-#   make test   set up .venv and run the default test suite
+#   make test   set up .venv and run the default test suite (two worker processes; WORKERS=N)
 # Others:
 #   make check         the fast tier for edits (pytest -m fast, under 3 minutes on 2 cores once numba's cache
 #                      is warm): scene validation, kernels and neighbours, conservation, 1 process vs 2 peers
@@ -20,8 +20,13 @@ setup:
 demo: setup
 	$(SPH) run configs/dam_break.toml --peers 2 --until 0.4 --set render.every=50 --set decomposition.balance_every=100 --out runs/demo
 
+# make test runs the suite in WORKERS processes (pytest-xdist), a test file to a process so that a
+# module's fixtures (the CUDA parity run, the PTX compile) run once: numba compiles on one core, and
+# the cold suite is mostly compiling. WORKERS=auto takes every core; WORKERS=0 runs in this process.
+WORKERS ?= 2
+
 test: setup
-	$(PY) -m pytest
+	$(PY) -m pytest -n $(WORKERS) --dist loadfile
 
 check: setup
 	$(PY) -m pytest -m fast

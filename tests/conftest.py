@@ -13,7 +13,9 @@ def pytest_collection_modifyitems(session, config, items):
     """The CUDA tests run last. Their simulator parity compares against the CPU backend in two
     subprocesses, which on a clean clone would compile every CPU kernel of their scenes themselves:
     13 minutes of this 2-core machine's 42 cold, 6 once the rest of the suite has filled numba's cache
-    (2026-12-03). Only the order changes; each test still stands alone."""
+    (2026-12-03). Only the order changes; each test still stands alone. ``make test`` hands whole files
+    to its workers (pytest-xdist --dist loadfile) in this order, so test_cuda.py is still handed out
+    last and its module fixtures run once."""
     items.sort(key=lambda item: item.path.name == "test_cuda.py")  # stable: the order within each part holds
 
 
