@@ -30,14 +30,15 @@ TOL = {"f64": {"x": 1e-12, "v": 1e-12, "rho": 1e-12, "p": 1e-12, "a": 1e-11},
 
 
 # The cases, each tier in two groups of about equal cost run side by side (the suite's other tests
-# wait for the fixture, so the second core would otherwise idle through it). In the simulator a 3D
-# DFSPH case costs ~4 minutes on one core of the development machine (every solver iteration
-# launches its kernels over ~500 threads of Python), 5x a WCSPH case: the default tier runs DFSPH on
-# the device across two peers in 2D (~1 minute); the slow tier adds the 3D DFSPH cases (one process,
-# two peers, two walking peers), the obstacle and the carried density's own case (walk_terms_f64
-# carries the density already).
-GROUPS = (["dfsph_peers_2d_f64", "tiny_f64", "terms_f64", "open_f64", "rotating_f64"],
-          ["tiny_f32", "periodic_f64", "peers_f64", "walk_terms_f64", "moving_walls_f64", "floating_f64"])
+# wait for the fixture, so the second core would otherwise idle through it). Every simulated thread is
+# Python, so the cases are small (tests/cuda_parity.py: the tiny scene at 117 particles, the 2D scenes
+# at 90-240), one or two blocks of threads each: with the CPU drivers already compiled, each default
+# case takes 8-25 s on one core of the development machine and the 2D DFSPH across two peers 46 s
+# (2026-12-04; tiny_f64 took 160 s at the tiny scene's own 498 particles). The slow tier adds the 3D
+# DFSPH cases (one process, two peers, two walking peers), the obstacle and the carried density's own
+# case (walk_terms_f64 carries the density already).
+GROUPS = (["dfsph_peers_2d_f64", "open_f64", "tiny_f64", "terms_f64"],
+          ["tiny_f32", "periodic_f64", "peers_f64", "walk_terms_f64", "moving_walls_f64", "floating_f64", "rotating_f64"])
 SLOW_GROUPS = (["dfsph_f64", "dfsph_peers_f64", "continuity_f64"], ["walk_dfsph_peers_f64", "obstacle_f64"])
 
 
