@@ -1,7 +1,7 @@
 """Named choices a scene can make, and the integer codes the compiled drivers receive.
 
 Scenes name choices as strings (``kernel = "wendland_c2"``); this module is the one registry that
-maps those names to the IntEnum codes passed to numba as compile-time literals.
+maps those names to the IntEnum codes the compiled drivers hold as compile-time constants.
 """
 from enum import IntEnum
 

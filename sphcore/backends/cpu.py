@@ -2,20 +2,30 @@
 
 Every driver loops over the owned rows i (``prange``) and calls the stage's row function, which
 visits i's neighbours j in list order and writes only row i (gather, never scatter: no atomics, no
-races, reproducible sums). The drivers' source is generated (``backends/generate.cpu_source``):
-choices (kernel, EOS, viscosity model, integrator, periodicity...) are compile-time literals
-(``numba.literally``), so each scene compiles, and caches, a driver containing only the branches it
-uses; a stage's reductions (``Stage.reduce``) are prange reductions (integer sums and maxima: the
-same result in any order).
+races, reproducible sums). The drivers' source is generated (``backends/generate.cpu_source``),
+one module per stage and combination of choices (kernel, EOS, viscosity model, integrator,
+periodicity...), with the choices as its constants, so each scene compiles, and caches, drivers
+containing only the branches it uses; a stage's reductions (``Stage.reduce``) are integer sums and
+maxima (the same result in any order).
 """
 import numpy as np
 
 from sphcore.backends.engine import Engine
 from sphcore.backends.generate import cpu_source, load_cpu_module
-from sphcore.stages import STAGES
 from sphcore.state import FIELDS as STATE_FIELDS
 
-DRIVERS = load_cpu_module(cpu_source(STAGES))  # module of drivers, one per stage, named as the stage
+_DRIVERS = {}  # (stage name, choice values) -> the driver
+
+
+def driver(stage, choices: tuple):
+    """The generated driver of ``stage`` for the choice values ``choices`` (in ``stage.choices``
+    order), imported on first use."""
+    key = (stage.name, choices)
+    found = _DRIVERS.get(key)
+    if found is None:
+        module = load_cpu_module(cpu_source(stage, dict(zip(stage.choices, choices))), f"cpu_{stage.name}")
+        found = _DRIVERS[key] = getattr(module, stage.name)
+    return found
 
 
 class CpuStages(Engine):
@@ -25,7 +35,6 @@ class CpuStages(Engine):
     def __init__(self, sim):
         self.dtype = sim.dtype
         super().__init__(sim)
-        self.drivers = {s.name: getattr(DRIVERS, s.name) for s in STAGES}
 
     def allocate(self, shape, initial):
         return np.full(shape, initial, dtype=self.dtype)
@@ -54,7 +63,7 @@ class CpuStages(Engine):
         return getattr(self.model.walls, name[len("wall_"):])  # wall_kind, wall_data, wall_tables
 
     def launch(self, stage, choices, n, arguments):
-        return self.drivers[stage.name](*choices, n, *arguments)
+        return driver(stage, tuple(choices))(n, *arguments)
 
     # -- host <-> device: nothing to move ----------------------------------------------------------
     def pull(self, state):
