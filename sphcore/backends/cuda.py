@@ -87,13 +87,17 @@ def _unwrap(a):
 
 def _device(fn):
     """How a kernel calls a shared ``@njit`` function: the function itself on a GPU (numba-cuda
-    compiles it as a device function); under the simulator, a wrapper running its CPU compilation on
-    the unwrapped arrays."""
+    compiles it as a device function); under the simulator, a wrapper running its Python source on
+    the unwrapped arrays (the functions it calls still run compiled). Not the row's CPU compilation:
+    called from Python its choices are int64 values, not constants, so numba typed and lowered every
+    branch of every choice, a minute or more per row function on a cold cache, while the Python row
+    steps the simulator's one or two blocks as fast (tests/cuda_parity.py tiny_f64 from an empty
+    cache: 95 s against 145 s, the same differences from the CPU; 2026-12-04)."""
     if not SIMULATOR:
         return fn
 
     def call(*args):
-        return fn(*[_unwrap(a) for a in args])
+        return fn.py_func(*[_unwrap(a) for a in args])
     return call
 
 
