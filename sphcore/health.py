@@ -38,7 +38,6 @@ diagonal), summed exactly in integers and over peers (``PeerHalo.reduce_sum``).
 from __future__ import annotations
 
 import logging
-import math
 
 import numpy as np
 
