@@ -18,8 +18,8 @@ _DRIVERS = {}  # (stage name, choice values) -> the driver
 
 
 def driver(stage, choices: tuple):
-    """The generated driver of ``stage`` for the choice values ``choices`` (in ``stage.choices``
-    order), imported on first use."""
+    """The generated driver of ``stage`` for the choice values ``choices`` (a tuple, in
+    ``stage.choices`` order, as ``Engine.run`` picks them), imported on first use."""
     key = (stage.name, choices)
     found = _DRIVERS.get(key)
     if found is None:
@@ -63,7 +63,7 @@ class CpuStages(Engine):
         return getattr(self.model.walls, name[len("wall_"):])  # wall_kind, wall_data, wall_tables
 
     def launch(self, stage, choices, n, arguments):
-        return driver(stage, tuple(choices))(n, *arguments)
+        return driver(stage, choices)(n, *arguments)
 
     # -- host <-> device: nothing to move ----------------------------------------------------------
     def pull(self, state):

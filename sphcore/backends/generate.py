@@ -2,10 +2,10 @@
 
 Each backend's plumbing is written here once as a template over a ``Stage``: the CPU driver (a
 ``prange`` over the rows, with the stage's reductions) and the CUDA kernel (one thread per row, with
-block reductions in shared memory). The generated CPU modules (one per stage and choice combination) are
-written to files beside numba's cache (numba caches only functions that live in a file) and imported
-from there; the CUDA source is
-executed in memory (kernels are compiled once per process and choice combination).
+block reductions in shared memory). The generated CPU modules (one per stage and choice
+combination) are written to files beside numba's cache (numba caches only functions that live in a
+file) and imported from there; the CUDA source is executed in memory (kernels are compiled once per
+process and choice combination).
 """
 from __future__ import annotations
 
@@ -126,9 +126,10 @@ def cuda_source(stages) -> str:
     return "\n".join(lines) + "\n"
 
 
-def load_cpu_module(source: str, stem: str = "cpu_drivers"):
-    """Import generated CPU drivers from a file under numba's cache folder (written only when its
-    content changes, atomically, so that concurrent peers and numba's cache index see one file)."""
+def load_cpu_module(source: str, stem: str):
+    """Import generated CPU drivers (``source``) as ``sphcore._generated_<stem>_<digest>`` from a file
+    under numba's cache folder (written only when its content changes, atomically, so that concurrent
+    peers and numba's cache index see one file)."""
     digest = hashlib.sha256(source.encode()).hexdigest()[:16]
     folder = Path(numba.config.CACHE_DIR or Path(tempfile.gettempdir()) / "sphfluid-numba") / "generated"
     path = folder / f"{stem}_{digest}.py"

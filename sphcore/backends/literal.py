@@ -1,10 +1,11 @@
 """Fast calls into numba functions whose leading arguments are compile-time literals, always into
 the machine code of numba's on-disk cache.
 
-Drivers take their choices (kernel, EOS, viscosity model...) as ``numba.literally`` integers, so
-each scene compiles only the branches it uses. numba finds a literal specialisation by raising and
-catching a typing exception on *every* call, which costs ~0.1 s; ``LiteralDispatch`` types the
-arguments once per combination and then calls the compiled entry point directly (~10 us).
+The generated stage drivers hold their choices as module constants (``generate.cpu_source``) and
+take no literals (``literal_dispatch(0)``); ``grid._build_neighbours`` still takes ``periodic`` as a
+``numba.literally`` integer. numba finds a literal specialisation by raising and catching a typing
+exception on *every* call, which costs ~0.1 s, and types every call's arguments; ``LiteralDispatch``
+types them once per combination and then calls the compiled entry point directly (~10 us).
 
 **Compiled in a helper process.** numba runs a kernel it has just compiled from its JIT engine and
 caches it through a separate object-code path, and with the neighbour passes' reassociation
