@@ -2,6 +2,7 @@
 NUMBA_ENABLE_CUDASIM must be set before numba is first imported; on a GPU it runs as is).
 
     python tests/cuda_parity.py [CASE ...]      prints one JSON object: {case: {metric: value}}
+                                                (and on stderr each case's metrics and seconds)
 
 Errors are scaled by each field's natural size, so that a near-zero field (pressure at rest) does
 not turn round-off into a large "relative" error: x by the domain extent, v by max |v| (and 1 m/s),
@@ -10,6 +11,7 @@ rho by rho0, p by rho0 c0^2 (the Tait stiffness times 7), a by max |a|.
 import json
 import os
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -208,8 +210,9 @@ CASES = {
 def main(names):
     results = {}
     for name in names or CASES:
+        started = time.perf_counter()
         results[name] = CASES[name]()
-        print(f"{name}: {results[name]}", file=sys.stderr, flush=True)
+        print(f"{name} ({time.perf_counter() - started:.1f} s): {results[name]}", file=sys.stderr, flush=True)
     print(json.dumps(results))
 
 

@@ -7,6 +7,7 @@ later figures are the price of that one choice (docs/BENCHMARKS.md, "Test suite"
 
     .venv/bin/python scripts/investigations/compile_cost.py
     .venv/bin/python scripts/investigations/compile_cost.py --cache /tmp/cc --run f64 --run "f64 sph.kernel='cubic_spline'"
+    .venv/bin/python scripts/investigations/compile_cost.py --run f64 --functions    # seconds per driver
 """
 import argparse
 import os
@@ -21,11 +22,29 @@ ROOT = Path(__file__).resolve().parents[2]
 RUNS = ["f64", "f64 sph.kernel='cubic_spline'", "f32"]
 STEP = ("import sys; from sphcore.scene import load_scene; from sphcore.solver import Simulation; "
         "sim = Simulation(load_scene('configs/tiny.toml', sys.argv[2:]), sys.argv[1]); sim.step(); sim.step()")
+# With --functions: numba's compile events, each top-level compile's function and seconds (a driver
+# the helper process compiles counts in full: sphcore/backends/literal.py wraps the wait in its event)
+LISTEN = """
+import time
+from numba.core import event
+_stack = []
+class _Each(event.Listener):
+    def on_start(self, ev):
+        _stack.append(time.perf_counter())
+    def on_end(self, ev):
+        took = time.perf_counter() - _stack.pop()
+        if not _stack and took >= 0.3:
+            f = ev.data["dispatcher"].py_func
+            print(f"    {took:6.1f} s  {f.__module__.rsplit('.', 1)[-1]}.{f.__qualname__}", flush=True)
+event.register("numba:compile", _Each())
+"""
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cache", help="numba cache folder to start empty (default: a temporary one)")
+    ap.add_argument("--functions", action="store_true", help="also print each compiled function's seconds "
+                    "(those over 0.3 s)")
     ap.add_argument("--run", action="append", help="precision then --set overrides, e.g. \"f32 sph.kernel='muller'\" "
                     f"(repeatable; default: {RUNS})")
     args = ap.parse_args()
@@ -36,7 +55,8 @@ def main():
     try:
         for run in args.run or RUNS:
             t = time.perf_counter()
-            subprocess.run([sys.executable, "-c", STEP, *run.split()], cwd=ROOT, env=env, check=True)
+            code = (LISTEN if args.functions else "") + STEP
+            subprocess.run([sys.executable, "-c", code, *run.split()], cwd=ROOT, env=env, check=True)
             n = sum(1 for _ in cache.rglob("*.nbc"))
             print(f"{run:40s} {time.perf_counter() - t:6.1f} s   cache: {n} specialisations", flush=True)
     finally:
