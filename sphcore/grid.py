@@ -187,12 +187,15 @@ def gather_rows_1d(src, perm, dst):
 
 
 @njit(cache=True, inline="always")
-def _scan_range(i, lo, hi, x, xi, yi, zi, H2, period, periodic, nbr, count, cap):
+def _scan_range(store_all, i, lo, hi, x, xi, yi, zi, H2, period, periodic, nbr, count, cap):
     """Append to row i of ``nbr`` every j != i in [lo, hi) within the support; count past the
-    capacity so the caller can grow it and rebuild. Branch-free: every candidate is stored at the
-    next free column (column ``cap``, a spare, once the list is full) and the count advances only for
-    a neighbour; about a third of the candidates are accepted, in no pattern a branch predictor could
-    learn, so a branch here mispredicts on most particles' every few candidates."""
+    capacity so the caller can grow it and rebuild. With ``store_all`` (the CPU) it is branch-free:
+    every candidate is stored at the next free column (column ``cap``, a spare, once the list is
+    full) and the count advances only for a neighbour; about a third of the candidates are accepted,
+    in no pattern a branch predictor could learn, so a branch here mispredicts on most particles'
+    every few candidates. On a GPU (``store_all`` false) only neighbours are stored: there a store
+    per candidate is a scattered write for every lane of a warp, about four times the list's own
+    writes. The lists are the same either way."""
     for j in range(lo, hi):
         dx = xi - x[j, 0]
         dy = yi - x[j, 1]
@@ -205,8 +208,12 @@ def _scan_range(i, lo, hi, x, xi, yi, zi, H2, period, periodic, nbr, count, cap)
             if period[2] > 0.0:
                 dz = minimum_image(dz, period[2])
         inside = (dx * dx + dy * dy + dz * dz < H2) & (j != i)
-        nbr[i, min(count, cap)] = j
-        count += 1 if inside else 0
+        if store_all:
+            nbr[i, min(count, cap)] = j
+            count += 1 if inside else 0
+        elif inside:
+            nbr[i, min(count, cap)] = j
+            count += 1
     return count
 
 
@@ -225,11 +232,12 @@ def _face_gap2(offset, xi, lo_face, hi_face):
 
 
 @njit(cache=True, inline="always")
-def neighbour_row(periodic, i, x, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell, period, H2, nbr,
-                  counts):
+def neighbour_row(periodic, store_all, i, x, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell, period,
+                  H2, nbr, counts):
     """Neighbour list of row i (shared by the CPU driver below and the CUDA kernel). Neighbour cells
     are visited in a fixed order (z, y, x); a cell (or a whole row of cells) farther than H from the
-    particle is skipped, which removes about a quarter of the candidates."""
+    particle is skipped, which removes about a quarter of the candidates. ``store_all``: how
+    _scan_range stores (true on the CPU, false on a GPU)."""
     nx, ny, nz = ncell[0], ncell[1], ncell[2]
     px, py, pz = period[0] > 0.0, period[1] > 0.0, period[2] > 0.0
     cap = nbr.shape[1] - 1  # the last column is the spare of _scan_range
@@ -267,7 +275,7 @@ def neighbour_row(periodic, i, x, contiguous, cell_begin, cell_end, origin, cell
             if contiguous and (not px or (ix >= 1 and ix + 1 < nx)):
                 lo = max(ix - 1, 0) if use_left else ix
                 hi = min(ix + 1, nx - 1) if use_right else ix
-                count = _scan_range(i, cell_begin[row + lo], cell_end[row + hi], x, xi, yi, zi,
+                count = _scan_range(store_all, i, cell_begin[row + lo], cell_end[row + hi], x, xi, yi, zi,
                                     H2, period, periodic, nbr, count, cap)
             else:
                 for dx in range(-1, 2):
@@ -278,7 +286,7 @@ def neighbour_row(periodic, i, x, contiguous, cell_begin, cell_end, origin, cell
                         if not px:
                             continue
                         cx = (cx + nx) % nx
-                    count = _scan_range(i, cell_begin[row + cx], cell_end[row + cx], x, xi, yi,
+                    count = _scan_range(store_all, i, cell_begin[row + cx], cell_end[row + cx], x, xi, yi,
                                         zi, H2, period, periodic, nbr, count, cap)
     counts[i] = count
 
@@ -340,8 +348,8 @@ def _build_neighbours(periodic, x, n_query, contiguous, cell_begin, cell_end, or
     """Neighbour lists of rows 0..n_query-1 (neighbour_row)."""
     literally(periodic)
     for i in prange(n_query):
-        neighbour_row(periodic, i, x, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell, period, H2,
-                      nbr, counts)
+        neighbour_row(periodic, True, i, x, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell, period,
+                      H2, nbr, counts)
 
 
 class Grid:

@@ -105,6 +105,53 @@ def blocks(n: int, block: int = BLOCK) -> int:
     return max((n + block - 1) // block, 1)
 
 
+def zero(a):
+    """a[:] = 0 on the device: a driver memset (an upload of zeros from the host took 74 us per
+    call on an H200's host, scripts/investigations/launch_overhead.py; the simulator has no memset)."""
+    if SIMULATOR:
+        a.copy_to_device(np.zeros(a.shape, dtype=a.dtype))
+    else:
+        from numba.cuda.cudadrv.driver import device_memset
+        device_memset(a, 0, a.nbytes)
+
+
+def _cache_tuple_arguments(kernel):
+    """numba-cuda turns a tuple argument into ctypes values field by field at every launch: the run's
+    Params (~45 scalars) cost 75 us a launch, against 14 us for a kernel without arguments (an H200's
+    host, scripts/investigations/launch_overhead.py). Here a compiled kernel keeps the converted values
+    of the tuples it was given (Params and Cells change only when steered), so each launch converts
+    only its arrays and numbers. The values are what numba itself would pass."""
+    if getattr(kernel, "_tuples_cached", False):
+        return
+    plain = type(kernel)._prepare_args
+    cache = {}
+
+    def prepare(ty, val, stream, retr, kernelargs):
+        if isinstance(ty, numba.types.BaseTuple):
+            key = (ty, val)
+            values = cache.get(key)
+            if values is None:
+                values = []
+                plain(kernel, ty, val, stream, retr, values)
+                if len(cache) >= 16:  # steering makes new Params; keep the few in use
+                    cache.clear()
+                cache[key] = values
+            kernelargs.extend(values)
+        else:
+            plain(kernel, ty, val, stream, retr, kernelargs)
+    kernel._prepare_args = prepare
+    kernel._tuples_cached = True
+
+
+def launch_cached(dispatcher, n: int, args):
+    """dispatcher[blocks(n), BLOCK](*args), with the tuple arguments of its compiled kernels cached
+    (_cache_tuple_arguments; not under the simulator, which has no compiled kernels)."""
+    dispatcher[blocks(n), BLOCK](*args)
+    if not SIMULATOR:
+        for kernel in dispatcher.overloads.values():
+            _cache_tuple_arguments(kernel)
+
+
 # -- physics kernels: generated from the stage declarations (one per stage and choice combination) --
 
 def _generated_factories() -> dict:
@@ -127,9 +174,14 @@ def _binning_kernels():
     cell_range_row = _device(grid_mod.cell_range_row)
 
     @cuda.jit
-    def cell_keys(x, n, n_owned, origin, inv_cell, ncell, keys, bin_count):
-        """keys[i] = cell key of row i (+ ncells for ghost rows); bin_count[key + 1] += 1."""
+    def cell_keys(x, n, n_owned, origin, inv_cell, ncell, keys, bin_count, flags):
+        """keys[i] = cell key of row i (+ ncells for ghost rows); bin_count[key + 1] += 1; flags (the
+        binning's two counters, DeviceGrid.flags) zeroed by thread 0 (kernels of a stream run in order,
+        so the counters are zero before cell_ranges and the list build add to them)."""
         i = cuda.grid(1)
+        if i == 0:
+            flags[0] = 0
+            flags[1] = 0
         if i < n:
             nx, ny, nz = ncell[0], ncell[1], ncell[2]
             ix = cell_index(x, i, 0, origin, inv_cell, ncell)
@@ -156,11 +208,11 @@ def _binning_kernels():
             sort_bin_row(c, bin_start, perm, ids)
 
     @cuda.jit
-    def cell_ranges(ncells, bin_start, cell_begin, cell_end, mixed):
+    def cell_ranges(ncells, bin_start, cell_begin, cell_end, flags):
         c = cuda.grid(1)
         if c < ncells:
             if cell_range_row(c, bin_start, ncells, cell_begin, cell_end):
-                cuda.atomic.add(mixed, 0, 1)  # only when a migration was missed
+                cuda.atomic.add(flags, 0, 1)  # only when a migration was missed
 
     return cell_keys, scatter, sort_bins, cell_ranges
 
@@ -189,22 +241,27 @@ def _add_offsets(a, n, chunk, scanned_sums):
             a[k] += scanned_sums[t - 1]
 
 
-def inclusive_scan(a, n: int):
+def scan_buffers(n: int, dtype) -> list:
+    """The chunk totals' arrays of every level of ``inclusive_scan`` over n elements, allocated once
+    (an allocation per step and level cost a device synchronisation each)."""
+    levels = []
+    while True:
+        n = (n + SCAN_CHUNK - 1) // SCAN_CHUNK
+        levels.append(cuda.device_array(n, dtype=dtype))
+        if n <= 1:
+            return levels
+
+
+def inclusive_scan(a, n: int, levels=None):
     """In-place inclusive prefix sum of device array a[:n] (chunked, recursive over chunk totals;
-    deterministic: integer sums)."""
+    deterministic: integer sums). ``levels``: scan_buffers(n) (allocated here if not given)."""
+    levels = scan_buffers(n, a.dtype) if levels is None else levels
+    sums = levels[0]
     nchunks = (n + SCAN_CHUNK - 1) // SCAN_CHUNK
-    sums = cuda.device_array(nchunks, dtype=a.dtype)
     _scan_chunks[blocks(nchunks), BLOCK](a, n, SCAN_CHUNK, sums)
     if nchunks > 1:
-        inclusive_scan(sums, nchunks)
+        inclusive_scan(sums, nchunks, levels[1:])
         _add_offsets[blocks(n), BLOCK](a, n, SCAN_CHUNK, sums)
-
-
-@cuda.jit
-def _fill_int(a, n, value):
-    i = cuda.grid(1)
-    if i < n:
-        a[i] = value
 
 
 @cuda.jit
@@ -214,25 +271,28 @@ def _copy_1d(src, n, dst):
         dst[i] = src[i]
 
 
-@cuda.jit
-def _gather_1d(src, perm, n, dst):
-    k = cuda.grid(1)
-    if k < n:
-        dst[k] = src[perm[k]]
+@functools.cache
+def gather_kernel(ndims: tuple):
+    """One kernel gathering every sorted field, dst_f[k] = src_f[perm[k]] for each field f (``ndims``:
+    each field's number of dimensions, 1 or 2), called as kernel(perm, n, src_0, dst_0, src_1, ...):
+    the grid's reorder is one launch, not one per field (the grid stage is launch-bound below
+    millions of particles)."""
+    body = []
+    for f, nd in enumerate(ndims):
+        body.append(f"        d{f}[k] = s{f}[i]" if nd == 1 else
+                    f"        for c in range(s{f}.shape[1]):\n            d{f}[k, c] = s{f}[i, c]")
+    args = ", ".join(f"s{f}, d{f}" for f in range(len(ndims)))
+    source = (f"def gather(perm, n, {args}):\n    k = cuda.grid(1)\n    if k < n:\n        i = perm[k]\n"
+              + "\n".join(body) + "\n")
+    namespace = {"cuda": cuda}
+    exec(compile(source, "<sphcore generated gather>", "exec"), namespace)  # noqa: S102
+    return cuda.jit(namespace["gather"])
 
 
 @cuda.jit
-def _gather_2d(src, perm, n, dst):
-    k = cuda.grid(1)
-    if k < n:
-        i = perm[k]
-        for c in range(src.shape[1]):
-            dst[k, c] = src[i, c]
-
-
-@cuda.jit
-def _max_int(values, n, out):
-    """out[0] = max(out[0], max(values[:n])): block reduction in shared memory, one atomic per block."""
+def _max_int(values, n, out, slot):
+    """out[slot] = max(out[slot], max(values[:n])): block reduction in shared memory, one atomic per
+    block."""
     s_max = cuda.shared.array(BLOCK, numba.int32)
     t = cuda.threadIdx.x
     i = cuda.grid(1)
@@ -245,7 +305,7 @@ def _max_int(values, n, out):
         cuda.syncthreads()
         s //= 2
     if t == 0:
-        cuda.atomic.max(out, 0, s_max[0])
+        cuda.atomic.max(out, slot, s_max[0])
 
 
 @functools.cache
@@ -257,8 +317,8 @@ def _neighbour_kernel(periodic):
                    counts):
         i = cuda.grid(1)
         if i < n_query:
-            row(periodic, i, x, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell, period, H2, nbr,
-                counts)
+            row(periodic, False, i, x, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell, period, H2,
+                nbr, counts)
     return neighbours
 
 
@@ -285,8 +345,10 @@ class DeviceGrid:
         self.cell_begin = cuda.device_array(self.ncells, dtype=np.int64)
         self.cell_end = cuda.device_array(self.ncells, dtype=np.int64)
         self._fill = cuda.device_array(2 * self.ncells, dtype=np.int64)
-        self._small = cuda.device_array(1, dtype=np.int64)
-        self._max = cuda.device_array(1, dtype=np.int32)
+        self._scan_levels = scan_buffers(self.bin_start.shape[0], np.int64)
+        # the binning's counters, read back once per step: [cells holding owned and ghost rows (a
+        # missed migration), the longest neighbour list]
+        self.flags = cuda.device_array(2, dtype=np.int32)
         self.d_nbr = cuda.device_array((0, capacity + 1), dtype=np.int32, order="F")  # + the builder's spare
         self.d_counts = cuda.device_array(0, dtype=np.int32)
         self.d_perm = cuda.device_array(0, dtype=np.int64)
@@ -313,8 +375,10 @@ class DeviceGrid:
             raise AttributeError(name)
         return getattr(self.host, name)
 
-    def sort(self, d):
-        """Order the device state ``d`` (DeviceState) by (cell, id): owned rows, then ghost rows."""
+    def sort(self, d, check: bool = True):
+        """Order the device state ``d`` (DeviceState) by (cell, id): owned rows, then ghost rows.
+        ``check``: read the missed-migration counter back now (else the list build reads it with
+        its own counter, one synchronisation per step either way)."""
         n = d.n
         if self._keys.shape[0] < n:
             self._keys = cuda.device_array(n, dtype=np.int64)
@@ -322,23 +386,31 @@ class DeviceGrid:
         self.n = n
         cell_keys, scatter, sort_bins, cell_ranges = _binning_kernels()
         nb = self.bin_start.shape[0]
-        _fill_int[blocks(nb), BLOCK](self.bin_start, nb, 0)
+        zero(self.bin_start)
         if n:
             cell_keys[blocks(n), BLOCK](d.x, n, d.n_owned, self.d_origin, self.d_inv_cell, self.d_ncell,
-                                        self._keys, self.bin_start)
-        inclusive_scan(self.bin_start, nb)
+                                        self._keys, self.bin_start, self.flags)
+        else:
+            zero(self.flags)
+        inclusive_scan(self.bin_start, nb, self._scan_levels)
         _copy_1d[blocks(nb - 1), BLOCK](self.bin_start, nb - 1, self._fill)
         if n:
             scatter[blocks(n), BLOCK](self._keys, n, self._fill, self.d_perm)
         sort_bins[blocks(nb - 1), BLOCK](nb - 1, self.bin_start, self.d_perm, d.id)
-        _fill_int[1, 1](self._small, 1, 0)
         cell_ranges[blocks(self.ncells), BLOCK](self.ncells, self.bin_start, self.cell_begin, self.cell_end,
-                                                self._small)
-        mixed = int(self._small.copy_to_host()[0])
-        if mixed:
-            raise RuntimeError(f"{mixed} grid cells hold both owned and ghost particles: a migration was missed")
+                                                self.flags)
         self.contiguous = d.n_owned == n
         d.reorder(self.d_perm)
+        if check:
+            self._read_flags()
+
+    def _read_flags(self) -> int:
+        """The binning's counters from the device (a synchronisation): raise on a missed migration,
+        else return the longest neighbour list (0 when none was built)."""
+        mixed, most = (int(v) for v in self.flags.copy_to_host())
+        if mixed:
+            raise RuntimeError(f"{mixed} grid cells hold both owned and ghost particles: a migration was missed")
+        return most
 
     def build_neighbours(self, x, n_query):
         """Neighbour lists of rows 0..n_query-1; grows the capacity and rebuilds when a list is longer.
@@ -348,23 +420,23 @@ class DeviceGrid:
             self.d_nbr = cuda.device_array((n_query, self.capacity + 1), dtype=np.int32, order="F")
             self.d_counts = cuda.device_array(n_query, dtype=np.int32)
         if n_query == 0:
-            return 0
+            return self._read_flags()
         kernel = _neighbour_kernel(int(self.periodic))
         while True:
             kernel[blocks(n_query), BLOCK](n_query, x, self.contiguous, self.cell_begin, self.cell_end,
                                            self.d_origin, self.d_cell, self.d_inv_cell, self.d_ncell, self.d_period,
                                            self.host.H2, self.d_nbr, self.d_counts)
-            _fill_int[1, 1](self._max, 1, 0)
-            _max_int[blocks(n_query), BLOCK](self.d_counts, n_query, self._max)
-            most = int(self._max.copy_to_host()[0])
+            _max_int[blocks(n_query), BLOCK](self.d_counts, n_query, self.flags, 1)
+            most = self._read_flags()
             if most <= self.capacity:
                 return most
             self.capacity = int(most * 1.25) + 8
             self.d_nbr = cuda.device_array((max(n_query, self.d_nbr.shape[0]), self.capacity + 1), dtype=np.int32,
                                            order="F")
+            zero(self.flags)
 
     def bin(self, d):
-        self.sort(d)
+        self.sort(d, check=False)
         return self.build_neighbours(d.x, d.n_owned)
 
 
@@ -409,21 +481,19 @@ class DeviceState:
         state.n_owned = self.n_owned
 
     def reorder(self, perm):
-        """Rows of the sorted fields (and extra arrays) gathered by ``perm`` (row k <- row perm[k]);
-        double-buffered."""
-        n = self.n
+        """Rows of the sorted fields (and extra arrays) gathered by ``perm`` (row k <- row perm[k]) in one
+        launch; double-buffered."""
+        pairs = []
         for name in SORTED + self.extra_names:
             src = self.arrays[name]
             dst = self._spare.get(name)
-            if dst is None or dst.shape != src.shape:
+            if dst is None or dst.shape != src.shape or dst.dtype != src.dtype:
                 dst = cuda.device_array(src.shape, dtype=src.dtype)
-            if n:
-                if src.ndim == 2:
-                    _gather_2d[blocks(n), BLOCK](src, perm, n, dst)
-                else:
-                    _gather_1d[blocks(n), BLOCK](src, perm, n, dst)
+            pairs += [src, dst]
             self.arrays[name] = dst
             self._spare[name] = src
+        if self.n:
+            gather_kernel(tuple(a.ndim for a in pairs[::2]))[blocks(self.n), BLOCK](perm, self.n, *pairs)
 
     def __getattr__(self, name):
         arrays = self.__dict__.get("arrays", {})
@@ -520,9 +590,9 @@ class CudaStages(Engine):
         slots = reduction_slots(stage.reduce)
         kinds = [t for t in ("int64", "float64") if any(typ == t for typ, _ in slots)]
         for t in kinds:
-            self.out[t].copy_to_device(np.zeros(MAX_REDUCED, dtype=t))
+            zero(self.out[t])
         if n:
-            KERNELS[stage.name](*choices)[blocks(n), BLOCK](n, *arguments, *(self.out[t] for t in kinds))
+            launch_cached(KERNELS[stage.name](*choices), n, (n, *arguments, *(self.out[t] for t in kinds)))
         if not stage.reduce:
             cuda.synchronize()
             return None
@@ -540,22 +610,28 @@ class CudaStages(Engine):
         cuda.synchronize()
 
 
+def example_params(dtype: str):
+    """A Params of precision ``dtype`` (f32, f64) with placeholder values: what a kernel's signature
+    is typed from (its values do not matter)."""
+    from sphcore.params import make_params
+    return make_params(np.float32 if dtype == "f32" else np.float64, H=1.0, h=0.5, s_w=1.0, s_g=1.0, s_l=1.0,
+                       w0=1.0, rho0=1000.0, c0=10.0, clamp_negative=True, alpha=0.1, mu=0.0, gravity=(0.0, -9.81, 0.0),
+                       external=(0.0, 0.0, 0.0), central_omega2=1.0, central=(0.0, 0.0, 0.0), period=(0.0, 0.0, 0.0),
+                       xsph_eps=0.0, shift_a=1.0, sigma=0.0, st_threshold=0.0, vorticity_eps=0.0, restitution=0.0,
+                       friction=0.0, wall_gap=0.0, dx=0.5, inv_s=1.0, dim3=True, wall_table_end=1.0, dfsph_d0=1.0,
+                       dfsph_omega=0.5, delta_hc0=1.0, wall_nu=0.0)
+
+
 def argument_types(dtype: str) -> dict:
     """The numba type of every stage argument (stages.ARGUMENTS and stages.SCRATCH) in precision
     ``dtype``: the PTX signatures are generated from the declarations."""
     from numba import types
-    from sphcore.params import make_params
     from sphcore.stages import SCRATCH
 
     f = types.float32 if dtype == "f32" else types.float64
     real = np.float32 if dtype == "f32" else np.float64
     cells = grid_mod.Cells(*(real(1.0),) * 9, 1, 1, 1, False, False, False, real(1.0))
-    prm = make_params(np.float32 if dtype == "f32" else np.float64, H=1.0, h=0.5, s_w=1.0, s_g=1.0, s_l=1.0, w0=1.0,
-                      rho0=1000.0, c0=10.0, clamp_negative=True, alpha=0.1, mu=0.0, gravity=(0.0, -9.81, 0.0),
-                      external=(0.0, 0.0, 0.0), central_omega2=1.0, central=(0.0, 0.0, 0.0), period=(0.0, 0.0, 0.0),
-                      xsph_eps=0.0, shift_a=1.0, sigma=0.0, st_threshold=0.0, vorticity_eps=0.0, restitution=0.0,
-                      friction=0.0, wall_gap=0.0, dx=0.5, inv_s=1.0, dim3=True, wall_table_end=1.0, dfsph_d0=1.0,
-                      dfsph_omega=0.5, delta_hc0=1.0, wall_nu=0.0)
+    prm = example_params(dtype)
     by_kind = {"params": numba.typeof(prm), "float": f, "int": types.int64, "bool": types.boolean, "vec": types.Array(f, 2, "C"),
                "row": types.Array(f, 1, "C"), "nbr": types.Array(types.int32, 2, "F"),
                "counts": types.Array(types.int32, 1, "C"), "cells": numba.typeof(cells),
@@ -598,11 +674,13 @@ def _binning_signatures(t) -> dict:
         sigs[f"neighbours periodic={periodic}"] = (
             _neighbour_kernel(periodic), (n, v2, types.boolean, i8v, i8v, v1, v1, v1, i8v, v1, f, nbr, i1))
     sigs.update({
-        "cell_keys": (cell_keys, (v2, n, n, v1, v1, i8v, i8v, i8v)),
+        "cell_keys": (cell_keys, (v2, n, n, v1, v1, i8v, i8v, i8v, i1)),
         "scatter": (scatter, (i8v, n, i8v, i8v)),
         "sort_bins": (sort_bins, (n, i8v, i8v, i8v)),
-        "cell_ranges": (cell_ranges, (n, i8v, i8v, i8v, i8v)),
-        "max_int": (_max_int, (i1, n, i1)),
+        "cell_ranges": (cell_ranges, (n, i8v, i8v, i8v, i1)),
+        "max_int": (_max_int, (i1, n, i1, n)),
+        "gather": (gather_kernel(tuple(1 + len(state_fields.ROW_SHAPE[f]) for f in SORTED)),
+                   (i8v, n, *(a for f in SORTED for a in ((i8v,) * 2 if f == "id" else (t[f],) * 2)))),
         "scan_chunks": (_scan_chunks, (i8v, n, n, i8v)),
     })
     return sigs
