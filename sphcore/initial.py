@@ -14,6 +14,8 @@ solver), so a scene starts at rest density.
 from __future__ import annotations
 
 import math
+import os
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -47,9 +49,10 @@ def _polar_points(centre, radius: float, dim: int, dx: float) -> np.ndarray:
     return np.asarray(centre, dtype=float) + np.concatenate(out)
 
 
-def _cartesian_points(block, dim: int, dx: float) -> np.ndarray:
+def _cartesian_points(block, dim: int, dx: float, slab=None) -> np.ndarray:
     """A block's cartesian lattice: points at min + (k + 1/2) dx over its bounding box, a sphere
-    block's cut to its radius."""
+    block's cut to its radius. ``slab`` = (k0, k1): only the layers k0 <= k < k1 of the outermost
+    axis (z in 3D, y in 2D), whose points are a contiguous run of the whole lattice's (z, y, x) order."""
     if block.shape == "box":
         lo = np.array(block.min, dtype=float)
         hi = np.array(block.max, dtype=float)
@@ -59,6 +62,8 @@ def _cartesian_points(block, dim: int, dx: float) -> np.ndarray:
         hi = c + block.radius
     counts = [max(int(round((hi[d] - lo[d]) / dx)), 1) if d < dim else 1 for d in range(3)]
     axes = [lo[d] + (np.arange(counts[d]) + 0.5) * dx if d < dim else np.zeros(1) for d in range(3)]
+    if slab is not None:
+        axes[dim - 1] = axes[dim - 1][slab[0]:slab[1]]
     gz, gy, gx = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
     pts = np.stack([gx.ravel(), gy.ravel(), gz.ravel()], axis=1)
     if block.shape == "sphere":
@@ -68,13 +73,32 @@ def _cartesian_points(block, dim: int, dx: float) -> np.ndarray:
     return pts
 
 
-def _block_points(block, scene: Scene, dx: float) -> np.ndarray:
+def _slabs(block, dim: int, dx: float, slab_points: int) -> list:
+    """The block's lattice in slabs of whole outer layers of about ``slab_points`` points each, filled
+    in parallel; [None] (the block whole) for a polar lattice or a block of one slab."""
+    if block.lattice == "polar":
+        return [None]
+    if block.shape == "box":
+        sides = [block.max[d] - block.min[d] for d in range(dim)]
+    else:
+        sides = [2.0 * block.radius] * dim
+    counts = [max(int(round(side / dx)), 1) for side in sides]
+    layers = counts[-1]
+    per_layer = max(math.prod(counts[:-1]), 1)
+    n_slabs = min(layers, max(1, (layers * per_layer) // max(slab_points, 1)))
+    if n_slabs <= 1:
+        return [None]
+    cuts = [layers * k // n_slabs for k in range(n_slabs + 1)]
+    return [(a, b) for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
+
+
+def _block_points(block, scene: Scene, dx: float, slab=None) -> np.ndarray:
     """The block's lattice points (a polar lattice only for a sphere block: scene validation), in
-    world coordinates."""
+    world coordinates; ``slab``: only those layers of a cartesian lattice (_cartesian_points)."""
     if block.lattice == "polar":
         pts = _polar_points(block.center, block.radius, scene.dim, dx)
     else:
-        pts = _cartesian_points(block, scene.dim, dx)
+        pts = _cartesian_points(block, scene.dim, dx, slab)
     if block.frame == "container":
         c, R = container_frame(scene)
         pts = c + (pts * scene.domain.scale) @ R.T
@@ -117,53 +141,89 @@ def check_probes_inside(scene: Scene, walls: Walls):
                          f"its walls bound it within {lo} .. {hi}")
 
 
-def fill_blocks(scene: Scene, walls: Walls) -> list[tuple[np.ndarray, np.ndarray]]:
-    """The (x, v) of each fluid block, in file order: its lattice points inside the domain, not
+SLAB_POINTS = 1 << 20  # lattice points a thread fills at once (a large block is filled in parallel)
+
+
+def _fill_slab(block, scene: Scene, walls: Walls, dx: float, slab, earlier):
+    """(kept points, lattice points, points outside the domain) of one slab of a block: the points not
+    outside the domain, not within half a spacing of a wall or inside an obstacle, not inside an
+    earlier block's box (``earlier``: their (lo, hi) grown by half a spacing)."""
+    pts = _block_points(block, scene, dx, slab)
+    outside = _outside_domain(walls, scene, pts, dx)
+    dist = np.full(len(pts), np.inf)
+    if walls.kind.shape[0]:
+        min_wall_distance(walls.kind, walls.data.astype(np.float64), pts, dist)
+    keep = (dist >= 0.5 * dx * (1 - 1e-6)) & ~outside
+    for lo, hi in earlier:  # blocks must not overlap: skip points already filled by an earlier block
+        keep &= ~np.all((pts >= lo) & (pts <= hi), axis=1)
+    return pts[keep], len(pts), int(outside.sum())
+
+
+def _joined(pool, parts: list, width: int) -> np.ndarray:
+    """The parts' rows, in order, in one (n, width) array, copied in parallel (first touch of a
+    large array is most of its cost)."""
+    if len(parts) == 1:
+        return parts[0]
+    ends = np.cumsum([len(p) for p in parts])
+    out = np.empty((int(ends[-1]) if len(ends) else 0, width))
+
+    def copy(k):
+        out[ends[k] - len(parts[k]):ends[k]] = parts[k]
+    list(pool.map(copy, range(len(parts))))
+    return out
+
+
+def _workers() -> int:
+    try:
+        return max(len(os.sched_getaffinity(0)), 1)
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def fill_blocks(scene: Scene, walls: Walls, slab_points: int = SLAB_POINTS) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(x (n, 3), its velocity (3,)) of each fluid block, in file order: its lattice points inside the domain, not
     within half a spacing of a wall or inside an obstacle, not filled already by an earlier block.
     SceneError for a block of which some points fall outside the domain (unless the block says
-    clip = true) or none is left."""
+    clip = true) or none is left. A large block is filled in slabs on every core (the same points in
+    the same order as one pass: a slab is a contiguous run of the lattice's order)."""
     dx = scene.particles.spacing
     estimate = sum(block_estimate(b, scene.dim, dx) for b in scene.fluid.blocks)
     if estimate > scene.particles.max_particles:  # validated at load; scenes made by dataclasses.replace too
         raise SceneError(f"particles.spacing = {dx!r}: would create about {estimate:.3g} particles, more than "
                          f"particles.max_particles = {scene.particles.max_particles} (raise the spacing or the limit)")
     filled = []
-    for i, block in enumerate(scene.fluid.blocks):
-        key = f"fluid.blocks[{i}]"
-        pts = _block_points(block, scene, dx)
-        outside = _outside_domain(walls, scene, pts, dx)
-        n_out = int(outside.sum())
-        if n_out == len(pts):
-            raise SceneError(f"{key}: no particle of this block lies inside the domain (check its min/max or "
-                             "center/radius against domain and obstacles)")
-        if n_out and not block.clip:
-            raise SceneError(f"{key}: {n_out} of its {len(pts)} particles fall outside the domain (container "
-                             "walls, domain.planes or bounds); move or shrink the block, or set "
-                             f"{key}.clip = true to keep only the part inside")
-        dist = np.full(len(pts), np.inf)
-        if walls.kind.shape[0]:
-            min_wall_distance(walls.kind, walls.data.astype(np.float64), pts, dist)
-        keep = (dist >= 0.5 * dx * (1 - 1e-6)) & ~outside
-        for prev, _ in filled:  # blocks must not overlap: skip points already filled by an earlier block
-            if len(prev) and len(pts):
-                lo, hi = prev.min(axis=0) - 0.5 * dx, prev.max(axis=0) + 0.5 * dx
-                inside = np.all((pts >= lo) & (pts <= hi), axis=1)
-                keep &= ~inside
-        pts = pts[keep]
-        if len(pts) == 0:
-            raise SceneError(f"{key}: no particle of this block is left inside the domain (within half a spacing "
-                             "of a wall, inside an obstacle or filled by an earlier block)")
-        filled.append((pts, np.tile(np.array(block.velocity, dtype=float), (len(pts), 1))))
+    with ThreadPoolExecutor(_workers()) as pool:
+        for i, block in enumerate(scene.fluid.blocks):
+            key = f"fluid.blocks[{i}]"
+            earlier = [(prev.min(axis=0) - 0.5 * dx, prev.max(axis=0) + 0.5 * dx) for prev, _ in filled if len(prev)]
+            parts = list(pool.map(lambda slab: _fill_slab(block, scene, walls, dx, slab, earlier),
+                                  _slabs(block, scene.dim, dx, slab_points)))
+            n_pts = sum(p[1] for p in parts)
+            n_out = sum(p[2] for p in parts)
+            if n_out == n_pts:
+                raise SceneError(f"{key}: no particle of this block lies inside the domain (check its min/max or "
+                                 "center/radius against domain and obstacles)")
+            if n_out and not block.clip:
+                raise SceneError(f"{key}: {n_out} of its {n_pts} particles fall outside the domain (container "
+                                 "walls, domain.planes or bounds); move or shrink the block, or set "
+                                 f"{key}.clip = true to keep only the part inside")
+            pts = _joined(pool, [p[0] for p in parts], 3)
+            if len(pts) == 0:
+                raise SceneError(f"{key}: no particle of this block is left inside the domain (within half a spacing "
+                                 "of a wall, inside an obstacle or filled by an earlier block)")
+            filled.append((pts, np.array(block.velocity, dtype=float)))
     return filled
 
 
-def generate_particles(scene: Scene, walls: Walls):
+def generate_particles(scene: Scene, walls: Walls, slab_points: int = SLAB_POINTS):
     """Return (ids (n,), x (n,3), v (n,3)) in float64; raise SceneError for impossible blocks."""
-    filled = fill_blocks(scene, walls)
-    xs = [x for x, _ in filled]
-    vs = [v for _, v in filled]
-    x = np.concatenate(xs)
-    v = np.concatenate(vs)
+    filled = fill_blocks(scene, walls, slab_points)
+    x = filled[0][0] if len(filled) == 1 else np.concatenate([x for x, _ in filled])
+    v = np.empty_like(x)
+    start = 0
+    for pts, velocity in filled:
+        v[start:start + len(pts)] = velocity
+        start += len(pts)
     if scene.fluid.initial_flow == "taylor_green":
         lo = np.array(scene.domain.bounds_min if scene.domain.container == "none" else walls.lo)
         hi = np.array(scene.domain.bounds_max if scene.domain.container == "none" else walls.hi)
@@ -216,7 +276,7 @@ def scene_report(scene: Scene) -> dict:
         inlets = [{"per_layer": len(lat.nodes), "layers": lat.K0, "layer_every_s": lat.dx / lat.U}
                   for lat in ob.inlets]
     est = resource_estimate(scene)
-    vmax = max(float(np.sqrt((v**2).sum(axis=1)).max()) for _, v in filled)
+    vmax = max(float(np.sqrt((v**2).sum())) for _, v in filled)
     if scene.fluid.initial_flow == "taylor_green":
         vmax += scene.fluid.flow_speed
     amax = math.hypot(*scene.forces.gravity) + math.hypot(*scene.forces.external)

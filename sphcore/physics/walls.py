@@ -161,9 +161,10 @@ def table_lookup(table, d, end):
     return table[k] * (like(f, 1.0) - f) + table[k + 1] * f
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def min_wall_distance(kinds, data, x, out):
-    """out[i] = min over walls of the signed distance of x[i] (used to carve initial particles)."""
+    """out[i] = min over walls of the signed distance of x[i] (used to carve initial particles; nogil:
+    a large block's slabs are carved on several threads)."""
     for i in range(x.shape[0]):
         best = 1.0e300
         for q in range(kinds.shape[0]):
