@@ -31,17 +31,21 @@ log = logging.getLogger("sph.bench")
 DEFAULT_SCENE = Path(__file__).resolve().parent.parent / "configs" / "dam_break.toml"
 
 
-def spacing_for(scene_path: Path, target: int) -> float:
-    """Spacing that gives about ``target`` particles (volume of the fluid blocks / dx^dim)."""
-    scene = load_scene(scene_path)
-    dim = scene.dim
+def _fluid_volume(scene) -> float:
+    """The volume (area in 2D) of the scene's fluid blocks (m^dim)."""
     volume = 0.0
     for b in scene.fluid.blocks:
         if b.shape == "box":
-            volume += float(np.prod([b.max[d] - b.min[d] for d in range(dim)]))
+            volume += float(np.prod([b.max[d] - b.min[d] for d in range(scene.dim)]))
         else:
-            volume += (np.pi * b.radius**2) if dim == 2 else (4.0 / 3.0 * np.pi * b.radius**3)
-    return float((volume / target) ** (1.0 / dim))
+            volume += (np.pi * b.radius**2) if scene.dim == 2 else (4.0 / 3.0 * np.pi * b.radius**3)
+    return volume
+
+
+def spacing_for(scene_path: Path, target: int) -> float:
+    """Spacing that gives about ``target`` particles (volume of the fluid blocks / dx^dim)."""
+    scene = load_scene(scene_path)
+    return float((_fluid_volume(scene) / target) ** (1.0 / scene.dim))
 
 
 def fixed_dt(scene_path: Path, dx: float) -> float:
@@ -53,7 +57,12 @@ def fixed_dt(scene_path: Path, dx: float) -> float:
 
 
 def _fixed(scene_path: Path, dx: float) -> list[str]:
-    return [f"particles.spacing={dx!r}", "time.mode='fixed'", f"time.dt={fixed_dt(scene_path, dx)!r}"]
+    """The case's overrides: its spacing and fixed step, and no particle limit below the size asked
+    for (the scene's max_particles guards against a mistyped spacing; here the size is the point)."""
+    scene = load_scene(scene_path)
+    limit = max(scene.particles.max_particles, int(2 * _fluid_volume(scene) / dx**scene.dim))
+    return [f"particles.spacing={dx!r}", "time.mode='fixed'", f"time.dt={fixed_dt(scene_path, dx)!r}",
+            f"particles.max_particles={min(limit, 10**10)}"]
 
 
 def _memory_kb(field: str) -> int | None:
@@ -76,9 +85,16 @@ def _reset_peak_memory():
 
 
 def _device_used() -> int | None:
+    """Bytes in use on the GPU, after freeing what earlier cases left for numba to free later (else
+    a case would count the previous case's arrays being freed as negative use)."""
+    import gc
+
     from numba import cuda
     try:
-        free, total = cuda.current_context().get_memory_info()
+        gc.collect()
+        context = cuda.current_context()
+        context.deallocations.clear()
+        free, total = context.get_memory_info()
         return int(total - free)
     except Exception:  # noqa: BLE001 - no device (simulator) or a driver without the query
         return None
@@ -90,7 +106,7 @@ def bench_case(scene_path: Path, dx: float, precision: str, threads: int, steps:
     before set-up (so it holds the state, scratch and grid; compiled code too on a cold cache), and on
     a GPU the device memory in use after the steps over that before set-up."""
     numba.set_num_threads(threads)
-    scene = load_scene(scene_path, _fixed(scene_path, dx) + [f"run.neighbours={neighbours!r}"])
+    scene = load_scene(scene_path, _fixed(scene_path, dx) + [f"run.neighbours={neighbours!r}"], backend=backend)
     rss_before = _memory_kb("VmRSS")
     device_before = _device_used() if backend == "cuda" else None
     sim = Simulation(scene, precision, backend)
@@ -168,18 +184,20 @@ def run_bench(args) -> int:
 
 
 def _peer_cases(scene_path: Path, dx: float, args) -> list[dict]:
-    """``sph run --peers P`` for every P and threads-per-peer T with P x T <= cores."""
+    """``sph run --peers P --no-viewer`` for every P and threads-per-peer T with P x T <= cores (on the
+    GPU backend the peers share the device; one thread count)."""
     out = []
     cores = numba.config.NUMBA_NUM_THREADS
     for precision in args.precisions:
-        for threads in args.threads:
+        for threads in (args.threads if args.backend == "cpu" else args.threads[:1]):
             for peers in args.peers:
                 if peers * threads > cores:
                     continue
                 with tempfile.TemporaryDirectory() as tmp:
                     cmd = [sys.executable, "-m", "launch.cli", "run", str(scene_path), "--peers", str(peers),
                            "--threads", str(threads), "--steps", str(args.steps + 1), "--precision", precision,
-                           "--out", tmp, "--quiet", "--set", "decomposition.balance_every=50"]
+                           "--out", tmp, "--quiet", "--no-viewer", "--backend", args.backend,
+                           "--set", "decomposition.balance_every=50"]
                     for kv in _fixed(scene_path, dx):
                         cmd += ["--set", kv]
                     done = subprocess.run(cmd, capture_output=True, text=True)
@@ -187,8 +205,8 @@ def _peer_cases(scene_path: Path, dx: float, args) -> list[dict]:
                         print(f"  {peers} peers: failed ({done.returncode}): {done.stderr[-2000:]}", file=sys.stderr)
                         continue
                     s = json.loads((Path(tmp) / "summary.json").read_text())
-                r = {"code": "sphfluid", "method": "wcsph", "precision": precision, "threads": threads,
-                     "peers": peers, "particles": s["particles"], "dx": dx, "steps": s["loop"]["steps"],
+                r = {"code": "sphfluid", "method": "wcsph", "backend": args.backend, "precision": precision,
+                     "threads": threads, "peers": peers, "particles": s["particles"], "dx": dx, "steps": s["loop"]["steps"],
                      "wall_s": s["loop"]["wall_s"], "particle_steps_per_s": s["particle_steps_per_s"],
                      "neighbours": s["neighbours"]["mean"], "bytes_sent_per_step": s["bytes_sent"] / s["steps"],
                      "bytes_over_minimum": s.get("bytes_over_minimum"), "imbalance": s.get("imbalance"),

@@ -428,8 +428,9 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--external", action="store_true",
                        help="also run PySPH and SPlisHSPlasH on the same scene (if installed)")
     bench.add_argument("--peers", type=_positive_int, nargs="+", default=[1],
-                       help="also run each case as P peer processes over Zenoh (e.g. --peers 1 2) and print "
-                            "the speed-up over one peer; P x threads must fit the cores (default: 1)")
+                       help="also run each case as P peer processes over Zenoh (e.g. --peers 1 2; no viewer) and "
+                            "print the speed-up over one peer; P x threads must fit the cores; with --backend cuda "
+                            "the peers share the GPU(s), rank r on GPU r modulo their number (default: 1)")
     bench.add_argument("--backend", choices=("cpu", "cuda"), default="cpu",
                        help="cuda: time the GPU backend (one GPU; --threads ignored), e.g. "
                             "--backend cuda --sizes 100000 1000000 4000000 --precisions f32 f64 (default: cpu)")
@@ -647,8 +648,8 @@ def _check_bench(args):
             raise UsageError(f"--threads {t}: this machine allows 1..{threads_available}")
     if args.backend == "cuda":
         _require_cuda()
-        if args.external or args.peers != [1]:
-            raise UsageError("--backend cuda: --external and --peers compare CPU runs; run them without it")
+        if args.external:
+            raise UsageError("--backend cuda: --external compares CPU codes; run it without --backend cuda")
 
 
 def _check_peers(scene, n_peers: int):
@@ -670,7 +671,7 @@ def _scene_for_run(args):
     if args.resume is None:
         if args.config is None:
             raise UsageError("give a scene file (e.g. configs/dam_break.toml) or --resume DIR")
-        return load_scene(args.config, args.overrides), None
+        return load_scene(args.config, args.overrides, backend=args.backend), None
     from sphcore.checkpoint import CheckpointError, load
     if args.config is not None:
         raise UsageError("--resume uses the scene saved with the checkpoint: give no scene file (--set may change "

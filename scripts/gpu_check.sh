@@ -3,18 +3,23 @@
 #   1. the CPU/CUDA parity cases of tests/cuda_parity.py, in parallel (each compiles its own kernels),
 #      checked against the tolerances of tests/test_cuda.py;
 #   2. 200 steps on the GPU against 200 on the CPU (tests/test_cuda.py::test_long_gpu_run...);
-#   3. the GPU benchmark (sph bench --backend cuda; lists and the cell walk), the largest run that fits
-#      (BIG particles, default 300 M, walking), and the same scene on all CPU cores for the ratio.
+#   3. the GPU benchmark (sph bench --backend cuda): float32 with lists and with the cell walk, float64
+#      with lists, STEPS steps (default 100) per case;
+#   4. what a kernel launch costs the host (scripts/investigations/launch_overhead.py);
+#   5. the largest run that fits (BIG particles, default 300 M, walking; BIG=0 skips it);
+#   6. two peer processes sharing the GPU against one, at PEERS_SIZE particles (default 4 M; 0 skips);
+#   7. the same scene on all CPU cores for the ratio (CPU_BENCH=0 skips it).
 #
-#   bash scripts/gpu_check.sh OUTDIR [SIZES...]     (default sizes: 100000 1000000 2000000)
+#   bash scripts/gpu_check.sh OUTDIR [SIZES...]     (default sizes: 1000000 2000000 4000000)
 #
-# PY selects the interpreter (default: .venv/bin/python if present, else python3). Writes OUTDIR/log.txt,
-# OUTDIR/parity.json, OUTDIR/gpu.json and OUTDIR/cpu.json; every step runs even when one before failed,
-# and the exit status is 1 if any failed.
+# About 9 minutes on one H200 with 16 cores (2026-12-04). PY selects the interpreter (default:
+# .venv/bin/python if present, else python3). Writes OUTDIR/log.txt, parity.json, gpu.json, gpu_big.json,
+# gpu_peers.json and cpu.json; every step runs even when one before failed, and the exit status is 1
+# if any failed.
 set -u
 OUTDIR=${1:-runs/gpu}
 shift || true
-SIZES=${*:-100000 1000000 2000000}
+SIZES=${*:-1000000 2000000 4000000}
 mkdir -p "$OUTDIR"
 if [ -z "${PY:-}" ]; then
     if [ -x .venv/bin/python ]; then PY=.venv/bin/python; else PY=python3; fi
@@ -35,7 +40,7 @@ say "machine"
 say "parity cases, in parallel"
 CASES=${CASES:-$($PY -c "import sys; sys.argv=['x']; sys.path.insert(0, 'tests'); import cuda_parity; print(' '.join(cuda_parity.CASES))")}
 for c in $CASES; do
-    ( NUMBA_NUM_THREADS=2 SPH_CACHE_DIR="$TMP/cache_$c" timeout 150 $PY tests/cuda_parity.py "$c" \
+    ( NUMBA_NUM_THREADS=2 SPH_CACHE_DIR="$TMP/cache_$c" timeout 170 $PY tests/cuda_parity.py "$c" \
         >"$TMP/$c.json" 2>"$TMP/$c.log"; echo "$c exit $?" >>"$TMP/$c.log" ) &
 done
 wait
@@ -73,18 +78,34 @@ say "long run: 200 steps GPU vs CPU"
 SPH_CACHE_DIR="$TMP/cache_tiny_f64" timeout 90 $PY -m pytest -q -p no:cacheprovider -m gpu \
     "tests/test_cuda.py::test_long_gpu_run_stays_close_to_cpu" >>"$LOG" 2>&1 || status=1
 
-say "GPU benchmark: sizes $SIZES, neighbour lists and the cell walk side by side"
+say "GPU benchmark: sizes $SIZES; float32 with lists and walking, float64 with lists"
 SPH_CACHE_DIR="$TMP/cache_bench" timeout 150 $PY -m launch.cli bench --backend cuda --sizes $SIZES \
-    --precisions f32 f64 --neighbours lists walk --steps ${STEPS:-200} --json "$OUTDIR/gpu.json" >>"$LOG" 2>&1 \
+    --precisions f32 --neighbours lists walk --steps ${STEPS:-100} --json "$OUTDIR/gpu.json" >>"$LOG" 2>&1 \
+    || status=1
+SPH_CACHE_DIR="$TMP/cache_bench" timeout 100 $PY -m launch.cli bench --backend cuda --sizes $SIZES \
+    --precisions f64 --neighbours lists --steps ${STEPS:-100} --json "$OUTDIR/gpu_f64.json" >>"$LOG" 2>&1 \
     || status=1
 
-say "GPU memory: ${BIG:-300000000} particles stepping, f32, cell walk (device bytes per particle)"
-SPH_CACHE_DIR="$TMP/cache_bench" timeout 120 $PY -m launch.cli bench --backend cuda --sizes ${BIG:-300000000} \
-    --precisions f32 --neighbours walk --steps 3 --json "$OUTDIR/gpu_big.json" >>"$LOG" 2>&1 || status=1
+say "what a kernel launch costs the host"
+timeout 60 $PY scripts/investigations/launch_overhead.py >>"$LOG" 2>&1 || status=1
 
-say "CPU benchmark on $(nproc) cores: 1000000 particles"
-SPH_CACHE_DIR="$TMP/cache_bench" timeout 60 $PY -m launch.cli bench --sizes 1000000 --precisions f32 \
-    --threads "$(nproc)" --steps 20 --json "$OUTDIR/cpu.json" >>"$LOG" 2>&1 || status=1
+if [ "${BIG:-300000000}" != 0 ]; then
+    say "GPU memory: ${BIG:-300000000} particles stepping, f32, cell walk (device bytes per particle)"
+    SPH_CACHE_DIR="$TMP/cache_bench" timeout 150 $PY -m launch.cli bench --backend cuda --sizes ${BIG:-300000000} \
+        --precisions f32 --neighbours walk --steps 2 --json "$OUTDIR/gpu_big.json" >>"$LOG" 2>&1 || status=1
+fi
+
+if [ "${PEERS_SIZE:-4000000}" != 0 ]; then
+    say "two peer processes sharing the GPU against one: ${PEERS_SIZE:-4000000} particles, f32"
+    SPH_CACHE_DIR="$TMP/cache_bench" timeout 200 $PY -m launch.cli bench --backend cuda --sizes ${PEERS_SIZE:-4000000} \
+        --precisions f32 --peers 1 2 --steps 100 --json "$OUTDIR/gpu_peers.json" >>"$LOG" 2>&1 || status=1
+fi
+
+if [ "${CPU_BENCH:-1}" != 0 ]; then
+    say "CPU benchmark on $(nproc) cores: 1000000 particles"
+    SPH_CACHE_DIR="$TMP/cache_bench" timeout 90 $PY -m launch.cli bench --sizes 1000000 --precisions f32 \
+        --threads "$(nproc)" --steps 20 --json "$OUTDIR/cpu.json" >>"$LOG" 2>&1 || status=1
+fi
 say "done (status $status)"
 rm -rf "$TMP"
 exit $status
