@@ -13,7 +13,6 @@ import sys
 import tempfile
 from pathlib import Path
 
-import numba
 import numpy as np
 import pytest
 
@@ -220,46 +219,6 @@ def test_float32_kernels_compute_in_float32(ptx):
         assert k.split()[0] in F64_ALLOWED["why"], f"{k}: no reason given for its float64 instructions"
     # the counter sees float64 where there is some: the float64 build of the force pass is full of it
     assert ptx["f32"]["f64 " + FORCES_DEFAULT]["f64"] > 100
-
-
-@pytest.mark.fast
-def test_tuple_arguments_are_converted_once_per_value():
-    """launch_cached's kernels convert a tuple argument (Params) to ctypes values once per value, and
-    pass what numba's own conversion gives (a stand-in kernel with numba's recursion: a tuple's fields
-    are converted through the kernel's _prepare_args, as numba-cuda 0.30 does)."""
-    from numba import types
-    from sphcore.backends.cuda import _cache_tuple_arguments, example_params
-
-    class Kernel:
-        converted = 0
-
-        def _prepare_args(self, ty, val, stream, retr, kernelargs):
-            if isinstance(ty, types.BaseTuple):
-                for t, v in zip(ty, val):
-                    self._prepare_args(t, v, stream, retr, kernelargs)
-            else:
-                type(self).converted += 1
-                kernelargs.append(("value", val))
-
-    def launch(kernel, args):
-        out = []
-        for a in args:
-            kernel._prepare_args(numba.typeof(a), a, 0, [], out)
-        return out
-
-    prm, other = example_params("f32"), example_params("f32")._replace(H=np.float32(2.0))
-    args = [np.int64(7), prm, np.float32(0.5)]
-    plain = launch(Kernel(), args)
-    cached = Kernel()
-    _cache_tuple_arguments(cached)
-    Kernel.converted = 0
-    assert launch(cached, args) == plain                      # the first launch converts every field
-    first = Kernel.converted
-    assert first == len(plain)
-    assert launch(cached, args) == plain                      # later launches convert only the scalars
-    assert Kernel.converted - first == 2
-    assert launch(cached, [np.int64(7), other, np.float32(0.5)]) != plain  # a new Params is converted anew
-    assert Kernel.converted - first == 2 + len(plain)
 
 
 def test_importing_never_needs_cuda():

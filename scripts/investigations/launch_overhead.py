@@ -1,8 +1,7 @@
 """What one kernel launch costs the host with numba-cuda, by the arguments it takes: an empty kernel
 with k device arrays, and with the run's Params (a NamedTuple of ~45 scalars), each launched 2000
-times back to back and then with a synchronisation after each (as the stage timers do); the same
-through ``launch_cached`` (the tuples' converted values kept: sphcore/backends/cuda.py); and zeroing
-64 bytes by an upload of zeros against a driver memset (``zero``).
+times back to back and then with a synchronisation after each (as the stage timers do); and zeroing
+64 bytes by an upload of zeros against a driver memset (``zero``, sphcore/backends/cuda.py).
 
     python scripts/investigations/launch_overhead.py          (needs a GPU)
 
@@ -14,7 +13,7 @@ import time
 import numpy as np
 from numba import cuda
 
-from sphcore.backends.cuda import example_params, launch_cached, zero
+from sphcore.backends.cuda import example_params, zero
 
 REPEAT = 2000
 
@@ -50,11 +49,8 @@ def main():
         def launch():
             kern[1, 128](*args)
 
-        def cached():
-            launch_cached(kern, 10, args)
         label = f"{k} arrays" + (" + Params" if params else "")
         print(f"{label:>28} {timed(launch, False):14.1f} {timed(launch, True):17.1f}")
-        print(f"{label + ', cached':>28} {timed(cached, False):14.1f} {timed(cached, True):17.1f}")
     small = cuda.device_array(8, dtype=np.int64)
     host = np.zeros(8, dtype=np.int64)
     t0 = time.perf_counter()

@@ -106,50 +106,14 @@ def blocks(n: int, block: int = BLOCK) -> int:
 
 
 def zero(a):
-    """a[:] = 0 on the device: a driver memset (an upload of zeros from the host took 74 us per
-    call on an H200's host, scripts/investigations/launch_overhead.py; the simulator has no memset)."""
+    """a[:] = 0 on the device: a driver memset, 4.8 us for 64 bytes against 97 us for an upload of zeros
+    from the host (an H200's host, scripts/investigations/launch_overhead.py, 2026-12-04; the simulator
+    has no memset)."""
     if SIMULATOR:
         a.copy_to_device(np.zeros(a.shape, dtype=a.dtype))
     else:
         from numba.cuda.cudadrv.driver import device_memset
         device_memset(a, 0, a.nbytes)
-
-
-def _cache_tuple_arguments(kernel):
-    """numba-cuda turns a tuple argument into ctypes values field by field at every launch: the run's
-    Params (~45 scalars) cost 75 us a launch, against 14 us for a kernel without arguments (an H200's
-    host, scripts/investigations/launch_overhead.py). Here a compiled kernel keeps the converted values
-    of the tuples it was given (Params and Cells change only when steered), so each launch converts
-    only its arrays and numbers. The values are what numba itself would pass."""
-    if getattr(kernel, "_tuples_cached", False):
-        return
-    plain = type(kernel)._prepare_args
-    cache = {}
-
-    def prepare(ty, val, stream, retr, kernelargs):
-        if isinstance(ty, numba.types.BaseTuple):
-            key = (ty, val)
-            values = cache.get(key)
-            if values is None:
-                values = []
-                plain(kernel, ty, val, stream, retr, values)
-                if len(cache) >= 16:  # steering makes new Params; keep the few in use
-                    cache.clear()
-                cache[key] = values
-            kernelargs.extend(values)
-        else:
-            plain(kernel, ty, val, stream, retr, kernelargs)
-    kernel._prepare_args = prepare
-    kernel._tuples_cached = True
-
-
-def launch_cached(dispatcher, n: int, args):
-    """dispatcher[blocks(n), BLOCK](*args), with the tuple arguments of its compiled kernels cached
-    (_cache_tuple_arguments; not under the simulator, which has no compiled kernels)."""
-    dispatcher[blocks(n), BLOCK](*args)
-    if not SIMULATOR:
-        for kernel in dispatcher.overloads.values():
-            _cache_tuple_arguments(kernel)
 
 
 # -- physics kernels: generated from the stage declarations (one per stage and choice combination) --
@@ -592,7 +556,7 @@ class CudaStages(Engine):
         for t in kinds:
             zero(self.out[t])
         if n:
-            launch_cached(KERNELS[stage.name](*choices), n, (n, *arguments, *(self.out[t] for t in kinds)))
+            KERNELS[stage.name](*choices)[blocks(n), BLOCK](n, *arguments, *(self.out[t] for t in kinds))
         if not stage.reduce:
             cuda.synchronize()
             return None
