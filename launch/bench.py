@@ -119,7 +119,10 @@ def bench_case(scene_path: Path, dx: float, precision: str, threads: int, steps:
     for _ in range(steps):
         sim.step()
     wall = time.perf_counter() - t0
-    stages = {k: v["median_s"] for k, v in sim.timers.summary().items()}
+    timed = sim.timers.summary()
+    stages = {k: v["median_s"] for k, v in timed.items()}
+    # what a step spends outside its timed stages, per step (the host's own work, occasional checks)
+    untimed = (wall - sum(v["total_s"] for v in timed.values())) / steps
     peak = _memory_kb("VmHWM")
     n = sim.n_particles
     host_bpp = (peak - rss_before) * 1024 / n if peak is not None and rss_before is not None else None
@@ -133,7 +136,8 @@ def bench_case(scene_path: Path, dx: float, precision: str, threads: int, steps:
         "particles": sim.n_particles, "dx": dx, "steps": steps, "dt": sim.dt, "wall_s": wall,
         "particle_steps_per_s": sim.n_particles * steps / wall, "steps_per_s": steps / wall, "first_step_s": first,
         "neighbours": sim.neighbours_sum / max(sim.state.n_owned, 1), "neighbour_search": neighbours,
-        "stage_median_s": stages,
+        "stage_median_s": stages, "stage_total_s": {k: v["total_s"] for k, v in timed.items()},
+        "untimed_s_per_step": untimed,
         "leaks": sim.leaks, "host_bytes_per_particle": host_bpp, "device_bytes_per_particle": device_bpp,
     }
 
@@ -195,7 +199,8 @@ def _peer_cases(scene_path: Path, dx: float, args) -> list[dict]:
                     continue
                 with tempfile.TemporaryDirectory() as tmp:
                     cmd = [sys.executable, "-m", "launch.cli", "run", str(scene_path), "--peers", str(peers),
-                           "--threads", str(threads), "--steps", str(args.steps + 1), "--precision", precision,
+                           *(["--threads", str(threads)] if args.backend == "cpu" else []),
+                           "--steps", str(args.steps + 1), "--precision", precision,
                            "--out", tmp, "--quiet", "--no-viewer", "--backend", args.backend,
                            "--set", "decomposition.balance_every=50"]
                     for kv in _fixed(scene_path, dx):
@@ -262,6 +267,8 @@ def _row(r: dict) -> str:
     split = ""
     if stages:
         split = "  " + " ".join(f"{k}={v * 1e3:.1f}ms" for k, v in stages.items())
+        if r.get("untimed_s_per_step") is not None:
+            split += f" untimed={r['untimed_s_per_step'] * 1e3:.1f}ms/step"
     nb = r.get("neighbours")
     nb_text = f"{nb:5.1f}" if isinstance(nb, (int, float)) else "    -"
     where = "cuda     " if r.get("backend") == "cuda" else f"threads={r['threads']}"

@@ -41,6 +41,9 @@ import logging
 
 import numpy as np
 
+from sphcore.physics import energy
+from sphcore.stages import ENERGY
+
 log = logging.getLogger("sph.health")
 
 MIN_SOLVED_STEPS = 20        # the unconverged fraction is judged from this many solved steps on
@@ -143,19 +146,22 @@ class Health:
                 return (f"off: a body force along the periodic axis {'xyz'[axis]} has no potential energy")
         return None
 
-    def _potential(self, x: np.ndarray, scene) -> np.ndarray:
-        """u(x) - u_min per unit mass (m^2/s^2) of the owned rows' positions ``x``."""
+    def _energy_terms(self, scene) -> np.ndarray:
+        """physics/energy.py's float64 constants: b = g + f_ext, u_min (the least -b . x in the grid's
+        box: at its corner farthest along b), omega^2 / 2, the central force's centre, the unit, the clamp."""
         f = scene.forces
-        body = np.add(f.gravity, f.external)
+        body = np.add(f.gravity, f.external).astype(np.float64)
         grid = self.sim.model.host_grid
         lo = grid.origin.astype(np.float64)
         hi = lo + grid.ncell * grid.cell.astype(np.float64)
-        # -b . x is lowest at the box's corner farthest along b
-        u_min = -float(np.sum(np.where(body > 0.0, body * hi, body * lo)))
-        u = -(x @ body) - u_min
-        if f.central_omega > 0.0:
-            u = u + 0.5 * f.central_omega ** 2 * np.einsum("ij,ij->i", x - f.central_center, x - f.central_center)
-        return u
+        terms = np.zeros(energy.TERMS, dtype=np.float64)
+        terms[energy.BODY:energy.BODY + 3] = body
+        terms[energy.U_MIN] = -float(np.sum(np.where(body > 0.0, body * hi, body * lo)))
+        terms[energy.HALF_OMEGA2] = 0.5 * f.central_omega ** 2
+        terms[energy.CENTRE:energy.CENTRE + 3] = f.central_center
+        terms[energy.QUANTUM] = self._quantum(scene)
+        terms[energy.CAP] = 2.0 ** 62 / max(self.sim.n_particles, 1)  # a blown-up run saturates, never overflows
+        return terms
 
     def _quantum(self, scene) -> float:
         """The energy of one unit of the integer sum (J; J/m in 2D)."""
@@ -168,19 +174,14 @@ class Health:
         return sim.n_particles * sim.model.mass * bound * 2.0 ** -ENERGY_QUANTUM_BITS
 
     def _energy_sum(self, halo, scene, phase: str, kinetic_only: bool = False):
-        """Generator: the energy over all peers, exactly (integer multiples of ``_quantum``)."""
+        """Generator: the energy over all peers, exactly (integer multiples of ``_quantum``): each row's
+        units from the energy stage (physics/energy.py; on the device that holds the state), summed
+        over peers."""
         sim = self.sim
-        s = sim.state
-        n = s.n_owned
-        v = sim.synchronised_velocity()[:n].astype(np.float64)
-        m = s.m[:n].astype(np.float64)
-        e = 0.5 * m * np.einsum("ij,ij->i", v, v)
-        if not kinetic_only:
-            e = e + m * self._potential(s.x[:n].astype(np.float64), scene)
-        cap = 2.0 ** 62 / max(sim.n_particles, 1)  # a blown-up run saturates instead of overflowing
-        units = np.rint(np.clip(e / self._quantum(scene), -cap, cap)).astype(np.int64)
-        total = yield from halo.reduce_sum(sim, phase, int(units.sum()))
-        return total * self._quantum(scene)
+        terms = self._energy_terms(scene)
+        units = sim._run(ENERGY, energy_terms=terms, kinetic=bool(kinetic_only), dt_prev=sim.dtype.type(sim.dt_prev))
+        total = yield from halo.reduce_sum(sim, phase, int(units))
+        return total * terms[energy.QUANTUM]
 
     def after_step(self, halo):
         """Generator, after each step: every run.energy_check_every steps (and at the reference),

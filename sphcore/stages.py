@@ -31,6 +31,7 @@ from sphcore.physics.continuity import density_update_row, diffusion_row
 from sphcore.physics.density import density_row
 from sphcore.physics.dfsph import dfsph_factor_row, dfsph_finish_row, dfsph_kick_row, dfsph_source_row, dfsph_update_row
 from sphcore.physics.drag import drag_row
+from sphcore.physics.energy import energy_row
 from sphcore.physics.bodies import body_reaction_row
 from sphcore.physics.integration import boundaries_row, integrate_row, statistics_row
 from sphcore.physics.momentum import acceleration_row
@@ -61,7 +62,7 @@ CHOICES = MappingProxyType({
 # Params NamedTuple), "float" (a scalar in the run's precision), "int", "bool", "vec" (n, 3) and "row" (n,)
 # arrays in the run's precision, "nbr" (n, capacity) int32 neighbour lists (column-major on the
 # GPU), "counts" (n,) int32, "cells" (grid.Cells), "cell_rows" (cells,) int64, "kinds" (walls,)
-# int32, "table" 2-D float arrays.
+# int32, "table" 2-D float arrays, "terms64" a (k,) float64 array whatever the precision.
 ARGUMENTS = MappingProxyType({
     "prm": ("params", "physical parameters (params.Params)"),
     # the particle state (state.ParticleState); kappa and rho_c are carried arrays (state.extra)
@@ -99,6 +100,9 @@ ARGUMENTS = MappingProxyType({
     "coefficient": ("float", "a force term's scene value (Stage.key), in the run's precision"),
     "wall": ("int", "a floating body's wall row (physics/bodies.py)"),
     "quantum": ("float", "a floating body's force unit (N; N/m in 2D): the exact sum's integer step"),
+    "energy_terms": ("terms64", "the energy watchdog's float64 constants: body force, u_min, central force, the "
+                                "integer unit, the clamp (physics/energy.py)"),
+    "kinetic": ("bool", "energy: the kinetic part only"),
 })
 
 
@@ -233,13 +237,14 @@ DENSITY_UPDATE = Stage("density_update", density_update_row, writes=("rho_c",)).
 INTEGRATE = Stage("integrate", integrate_row, writes=("x", "v")).check()
 BOUNDARIES = Stage("boundaries", boundaries_row, writes=("x", "v"), reduce=("sum",)).check()  # leaks
 BODY_REACTION = Stage("body_reaction", body_reaction_row, writes=(), reduce=("sum", "sum", "sum")).check()  # F
+ENERGY = Stage("energy", energy_row, writes=(), reduce=("sum",)).check()  # the energy watchdog's integer units
 
 # Force terms: each adds to a after FORCES, in this order, when its scene key is > 0
 FORCE_TERMS = (SURFACE_TENSION, DRAG, WALL_FRICTION)
 
 STAGES = (DENSITY, OUTLET_PRESSURE, DFSPH_FACTOR, FORCES, DIFFUSION, *FORCE_TERMS, VORTICITY, CONFINEMENT, XSPH, SHIFTING,
           OPEN_BOUNDARY, STATISTICS, DFSPH_KICK, DFSPH_SOURCE, DFSPH_UPDATE, DFSPH_FINISH, DENSITY_UPDATE, INTEGRATE, BOUNDARIES,
-          BODY_REACTION)
+          BODY_REACTION, ENERGY)
 
 
 def covering_choices(stage: Stage) -> list[dict]:

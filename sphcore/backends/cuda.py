@@ -600,7 +600,7 @@ def argument_types(dtype: str) -> dict:
                "row": types.Array(f, 1, "C"), "nbr": types.Array(types.int32, 2, "F"),
                "counts": types.Array(types.int32, 1, "C"), "cells": numba.typeof(cells),
                "cell_rows": types.Array(types.int64, 1, "C"), "kinds": types.Array(types.int32, 1, "C"),
-               "table": types.Array(f, 2, "C")}
+               "table": types.Array(f, 2, "C"), "terms64": types.Array(types.float64, 1, "C")}
     out = {name: by_kind[kind] for name, (kind, _) in ARGUMENTS.items()}
     out.update({s.name: by_kind["row" if s.components == 1 else "vec"] for s in SCRATCH})
     out["n"] = types.int64
