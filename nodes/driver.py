@@ -466,6 +466,7 @@ def _gather(peer: PeerRun, recorder: PeerRecorder, controls: Controls, loop: dic
         "neighbours_sum": sim.neighbours_sum, "neighbours_max": sim.neighbours_max,
         "neighbours_max_over_run": sim.max_neighbours, "rebalances": halo.rebalances,
         "dropped_messages": endpoint.dropped, "dropped": endpoint.drops, "threads": numba.get_num_threads(),
+        "device_transfer": sim.engine.transfer(),
         "cuts": [list(c) for c in halo.dec.cuts], "controls": controls.applied,
     }
     final = {"id": s.id[:n], "x": s.x[:n], "v": np.ascontiguousarray(v[:n]), "rho": s.rho[:n],
@@ -592,6 +593,14 @@ def progress_summary(sim: Simulation, scene: Scene, world: int, t_start: float, 
             "precision": sim.precision, "leaks": sim.leaks, "updated": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
 
 
+def _per_step(transfer: dict, steps: int) -> dict:
+    """summary.json's ``device_transfer``: the bytes copied between host and device over the run (the
+    set-up's upload of the state included) and their mean per step."""
+    total = transfer["to_device_bytes"] + transfer["to_host_bytes"]
+    return {**transfer, "per_step_bytes": total / max(steps, 1),
+            "note": "explicit copies between host and device (state, halo rows, read-backs, moving walls)"}
+
+
 def make_summary(sim: Simulation, scene: Scene, loop: dict, t_setup: float, wall_total: float) -> dict:
     """The summary.json every run writes (a multi-peer run adds ``nodes.peer.peer_summary``)."""
     stages = sim.timers.summary()
@@ -626,6 +635,7 @@ def make_summary(sim: Simulation, scene: Scene, loop: dict, t_setup: float, wall
         "neighbours": {"mean": sim.neighbours_sum / n if n else 0.0, "max": sim.neighbours_max,
                        "max_over_run": sim.max_neighbours, "search": sim.model.neighbours},
         "leaks": sim.leaks,
+        **({"device_transfer": _per_step(sim.engine.transfer(), sim.step_index)} if sim.backend == "cuda" else {}),
         "max_compression": sim.max_compression,
         "kinetic_energy": sim.kinetic_energy(),
         "health": sim.health.summary(),

@@ -66,7 +66,7 @@ class PeerRecorder:
             self._waited = sum(self.endpoint.wait_s.values())
             return
         waited = sum(self.endpoint.wait_s.values())
-        self.particles.append(self.sim.state.n_owned)
+        self.particles.append(self.sim.engine.n_owned())  # not sim.state: on a GPU that downloads every row
         self.step_s.append(seconds)
         self.wait_s.append(waited - self._waited)
         self._waited = waited
@@ -379,11 +379,20 @@ def _final_check(sim: Simulation, q: int, own: dict, parts: list, peers: list):
         if not (isinstance(stats, dict) and set(stats) == set(own) and stats["rank"] == q
                 and stats["particles_final"] == n
                 and all(isinstance(stats[k], list) and len(stats[k]) == len(own[k])
-                        for k in ("particles", "step_s", "wait_s"))):
+                        for k in ("particles", "step_s", "wait_s"))
+                and _transfer_ok(stats["device_transfer"], own["device_transfer"])):
             raise Reject("stats", f"{what}: statistics are not a peer's of this run")
         peers.append(stats)
 
     return check
+
+
+def _transfer_ok(theirs, own) -> bool:
+    """A peer's ``device_transfer`` has the form of rank 0's: None, or byte counts (whole numbers >= 0)."""
+    if own is None or theirs is None:
+        return own is None and theirs is None
+    return (isinstance(theirs, dict) and set(theirs) == set(own)
+            and all(type(v) is int and 0 <= v < 2**62 for v in theirs.values()))
 
 
 def minimum_halo_bytes(ghosts: int, itemsize: int) -> int:
@@ -450,4 +459,13 @@ def peer_summary(peers: list[dict], base: dict, world: int, itemsize: int) -> di
     }
     if steps:
         out["bytes_per_step"] = {ph: b / max(1, base["steps"]) for ph, b in bytes_per_phase.items()}
+    if peers[0]["device_transfer"] is not None:  # checked in _final_check: byte counts, or None on every peer
+        for p, row in zip(peers, out["per_peer"]):
+            row["device_transfer"] = p["device_transfer"]
+        total = sum(v for p in peers for v in p["device_transfer"].values())
+        out["device_transfer"] = {
+            "to_device_bytes": sum(p["device_transfer"]["to_device_bytes"] for p in peers),
+            "to_host_bytes": sum(p["device_transfer"]["to_host_bytes"] for p in peers),
+            "per_step_bytes": total / max(1, base["steps"]),
+            "note": "all peers: explicit copies between host and device (state, halo rows, read-backs, moving walls)"}
     return out

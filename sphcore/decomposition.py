@@ -20,6 +20,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit, prange
 
 
 def choose_dims(n_peers: int, ncell, dim: int, layout: str = "auto") -> tuple[int, int, int]:
@@ -170,3 +171,59 @@ class Decomposition:
     def outgoing(self, cells: np.ndarray, rank: int, to: int) -> np.ndarray:
         """Mask of the particles of ``rank`` (their (n, 3) cells) that peer ``to`` needs as ghosts."""
         return self.in_halo(cells, to)
+
+
+# -- what exchange 1 asks of every owned particle, on the host or on a GPU (Engine.zone_rows) ------
+
+def zone_tables(dec: Decomposition, rank: int, neighbours) -> tuple:
+    """The decomposition as ``zone_code`` reads it: cuts (3, max dims + 1) int64 (padded with the
+    axis's cell count), dims (3,), the neighbours' blocks (k, 6) [lo (3), hi (3)] int64, ncell (3,)
+    and periodic (3,) int64."""
+    width = max(dec.dims) + 1
+    cuts = np.array([list(c) + [c[-1]] * (width - len(c)) for c in dec.cuts], dtype=np.int64)
+    boxes = np.array([np.concatenate(dec.cell_box(q)) for q in neighbours], dtype=np.int64).reshape(-1, 6)
+    return (cuts, np.array(dec.dims, dtype=np.int64), boxes, np.array(dec.ncell, dtype=np.int64),
+            np.array(dec.periodic, dtype=np.int64))
+
+
+@njit(cache=True, inline="always")
+def zone_code(c0, c1, c2, cuts, dims, boxes, ncell, periodic):
+    """(owner, mask) of a particle in cell (c0, c1, c2): the rank owning the cell (as
+    ``Decomposition.owner``) and bit b set when the cell lies in the incoming zone of neighbour b
+    (``Decomposition.outgoing`` to the b-th row of ``boxes``, periodic wrap included)."""
+    block0 = 0
+    block1 = 0
+    block2 = 0
+    for j in range(1, dims[0]):
+        if c0 >= cuts[0, j]:
+            block0 = j
+    for j in range(1, dims[1]):
+        if c1 >= cuts[1, j]:
+            block1 = j
+    for j in range(1, dims[2]):
+        if c2 >= cuts[2, j]:
+            block2 = j
+    owner = (block2 * dims[1] + block1) * dims[0] + block0
+    mask = 0
+    for b in range(boxes.shape[0]):
+        gap = 0
+        for a in range(3):
+            c = c0 if a == 0 else (c1 if a == 1 else c2)
+            lo = boxes[b, a]
+            hi = boxes[b, 3 + a]
+            d = max(lo - c, 0) + max(c - (hi - 1), 0)
+            if periodic[a]:
+                n = ncell[a]
+                d = min(d, max(lo - (c - n), 0) + max((c - n) - (hi - 1), 0))
+                d = min(d, max(lo - (c + n), 0) + max((c + n) - (hi - 1), 0))
+            gap = max(gap, d)
+        if gap == 1:
+            mask |= 1 << b
+    return owner, mask
+
+
+@njit(cache=True, parallel=True)
+def zone_codes(cells, cuts, dims, boxes, ncell, periodic, owner, mask):
+    """zone_code of every row of ``cells`` (n, 3) into owner (n,) and mask (n,)."""
+    for i in prange(cells.shape[0]):
+        owner[i], mask[i] = zone_code(cells[i, 0], cells[i, 1], cells[i, 2], cuts, dims, boxes, ncell, periodic)

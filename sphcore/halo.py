@@ -34,7 +34,7 @@ from typing import Protocol
 
 import numpy as np
 
-from sphcore.state import ParticleState, carried_layout
+from sphcore.state import EXTRA_PREFIX, ParticleState, carried_layout
 
 
 class Reject(ValueError):
@@ -90,7 +90,7 @@ class NullHalo:
         return
         yield
 
-    def exchange_ghosts(self, sim, phase, arrays, kind=None):
+    def exchange_ghosts(self, sim, phase, names, kind=None):
         return
         yield
 
@@ -193,10 +193,11 @@ class PeerHalo:
 
         return check
 
-    def _ghost_rows_check(self, q, phase, arrays, lo, hi):
+    def _ghost_rows_check(self, q, phase, layout, lo, hi):
         """Check of exchange 2 and later from peer ``q``: exactly the arrays sent, one row per ghost
-        that ``q`` sent in exchange 1, in the run's dtype, finite."""
-        expected = {k: ((hi - lo,) + a.shape[1:], a.dtype) for k, a in arrays.items()}
+        that ``q`` sent in exchange 1, in the run's dtype, finite (``layout``: name -> (the shape of
+        a row, dtype))."""
+        expected = {k: ((hi - lo,) + tuple(shape), dtype) for k, (shape, dtype) in layout.items()}
 
         def check(msg):
             expect_arrays(msg, expected, f"{phase} from peer {q}")
@@ -259,38 +260,46 @@ class PeerHalo:
         if self.balance_every and step > 0 and step % self.balance_every == 0 and self._balanced_at != step:
             self._balanced_at = step
             yield from self.rebalance(sim)
-        s = sim.state
-        n = s.n_owned
-        # 1a: particles that crossed into a neighbour's block go to it (they moved less than a cell)
-        own = s.carried_arrays(n)
-        self._extra_shapes = {k: a[:0] for k, a in s.extra.items()}
-        cells = sim.grid.cells_of(own["x"])
-        owner = self.dec.owner(cells)
-        keep = owner == self.rank
-        n_leaving = n - int(np.count_nonzero(keep))
+        engine = sim.engine
+        names = engine.carried_names()
+        self._extra_shapes = {k[len(EXTRA_PREFIX):]: np.empty((0,) + tuple(shape), dtype)
+                              for k in names if k.startswith(EXTRA_PREFIX) for shape, dtype in [engine.row_layout(k)]}
+        empty = {k: np.empty(shape, dtype) for k, (shape, dtype) in carried_layout(0, sim.dtype, self._extra_shapes).items()}
+        # which owned rows leave, and which are a neighbour's ghosts: asked where the rows live, so that
+        # only those rows are read (on a GPU, only they cross PCIe)
+        rows, owner, mask = engine.zone_rows(self.dec, self.rank, self.neighbours)
+        leaving = owner != self.rank
+        n_leaving = int(np.count_nonzero(leaving))
         self.migrated += n_leaving
-        if n_leaving and np.any(~keep & ~np.isin(owner, self.neighbours)):
+        if n_leaving and np.any(leaving & ~np.isin(owner, self.neighbours)):
             raise RuntimeError(f"peer {self.rank}, step {step}: a particle moved beyond the neighbouring peers")
+        # 1a: particles that crossed into a neighbour's block go to it (they moved less than a cell)
         for q in self.neighbours:
-            to_q = owner == q if n_leaving else slice(0, 0)
-            self._send(q, (step, "migrants"), {k: v[to_q] for k, v in own.items()}, "migrants")
-        parts = [own if not n_leaving else {k: v[keep] for k, v in own.items()}]
-        cell_parts = [cells if not n_leaving else cells[keep]]
+            self._send(q, (step, "migrants"), engine.rows_of(names, rows[owner == q], renumber=False), "migrants")
+        arrivals, arrival_cells = [empty], [np.empty((0, 3), dtype=np.int64)]
         mine = self.rank
         for q in self.neighbours:
             got = {}
             check = self._particles_check(sim, q, "migrants", lambda cells: self.dec.owner(cells) == mine, got)
-            parts.append((yield from self.transport.recv(q, (step, "migrants"), check)))
-            cell_parts.append(got["cells"])
-        owned = {k: np.concatenate([p[k] for p in parts]) for k in own}
-        cells = np.concatenate(cell_parts)
-        # 1b: ghosts come from the owned set after migration (a migrant can be another peer's ghost)
-        for q in self.neighbours:
-            rows = np.nonzero(self.dec.outgoing(cells, self.rank, q))[0]
-            self._sent_rows[q] = rows
-            self._send(q, (step, "positions"), {k: v[rows] for k, v in owned.items()}, "positions")
-        ghosts = []
-        first = n_own = len(owned["id"])
+            arrivals.append((yield from self.transport.recv(q, (step, "migrants"), check)))
+            arrival_cells.append(got["cells"])
+        migrants = {k: np.concatenate([a[k] for a in arrivals]) for k in names}
+        cells_in = np.concatenate(arrival_cells)
+        # 1b: ghosts come from the owned set after migration (a migrant can be another peer's ghost):
+        # the kept rows (renumbered past the leaving ones), then the migrants, in that order
+        gone = rows[leaving]
+        kept, kept_mask = rows[~leaving], mask[~leaving]
+        kept_now = kept - np.searchsorted(gone, kept)
+        n_kept = engine.n_owned() - n_leaving
+        for b, q in enumerate(self.neighbours):
+            own_q = ((kept_mask >> b) & 1).astype(bool)
+            in_q = np.nonzero(self.dec.outgoing(cells_in, self.rank, q))[0]
+            self._sent_rows[q] = np.concatenate([kept_now[own_q], n_kept + in_q])
+            part = engine.rows_of(names, kept[own_q], renumber=False)
+            self._send(q, (step, "positions"), {k: np.concatenate([part[k], migrants[k][in_q]]) for k in names},
+                       "positions")
+        ghosts = [empty]
+        first = n_kept + len(migrants["id"])
         for q in self.neighbours:
             check = self._particles_check(sim, q, "positions",
                                           lambda cells, q=q: self.dec.outgoing(cells, q, mine), {})
@@ -299,31 +308,26 @@ class PeerHalo:
             self.ghosts_received += count
             self._ghost_rows[q] = (first, first + count)
             first += count
-        new = _state_of([owned] + ghosts, sim.dtype)
-        new.n_owned = n_own
-        sim.state = new
+        engine.rebuild(gone, migrants, {k: np.concatenate([g[k] for g in ghosts]) for k in names})
 
     def exchange_fields(self, sim):
-        s = sim.state
-        yield from self.exchange_ghosts(sim, "fields", {"rho": s.rho, "p": s.p})
+        yield from self.exchange_ghosts(sim, "fields", ("rho", "p"))
 
-    def exchange_ghosts(self, sim, phase, arrays, kind=None):
-        """Send the rows of ``arrays`` (per-row arrays of the sorted state) that are the neighbours'
-        ghosts, in the order of exchange 1; fill our ghost rows with theirs. ``phase`` names the
-        message (unique within a step); bytes are counted under ``kind`` (default: the phase)."""
+    def exchange_ghosts(self, sim, phase, names, kind=None):
+        """Send the rows of the per-row arrays ``names`` that are the neighbours' ghosts, in the order of
+        exchange 1; fill our ghost rows with theirs. The backend packs and unpacks the rows where the
+        arrays live (``Engine.rows_of``, ``set_rows``: on a GPU only these rows cross PCIe).
+        ``phase`` names the message (unique within a step); bytes are counted under ``kind``
+        (default: the phase)."""
         step = sim.step_index
-        s = sim.state
-        where = np.empty(s.n, dtype=np.int64)  # row before the grid sort -> row after it
-        where[sim.grid.last_permutation] = np.arange(s.n)
+        engine = sim.engine
         for q in self.neighbours:
-            rows = where[self._sent_rows[q]]
-            self._send(q, (step, phase), {k: a[rows] for k, a in arrays.items()}, kind or phase)
+            self._send(q, (step, phase), engine.rows_of(names, self._sent_rows[q]), kind or phase)
+        layout = {k: engine.row_layout(k) for k in names}
         for q in self.neighbours:
             lo, hi = self._ghost_rows[q]
-            msg = yield from self.transport.recv(q, (step, phase), self._ghost_rows_check(q, phase, arrays, lo, hi))
-            rows = where[lo:hi]
-            for k, a in arrays.items():
-                a[rows] = msg[k]
+            msg = yield from self.transport.recv(q, (step, phase), self._ghost_rows_check(q, phase, layout, lo, hi))
+            engine.set_rows({k: msg[k] for k in names}, np.arange(lo, hi))
 
     def owns(self, sim, x):
         """Which of the points x (n, 3) lie in this peer's block (the cells it owns)."""

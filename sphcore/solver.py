@@ -391,10 +391,7 @@ class Simulation:
             self._run(term, prm=prm, coefficient=self.dtype.type(value), dt_prev=self.dtype.type(self.dt_prev))
         if self.use_vorticity:
             self._run(st.VORTICITY, prm=prm)                       # x, v, rho        -> omega
-            omega = self.engine.fetch("omega")
-            yield from halo.exchange_ghosts(self, "omega", {"omega": omega})  # ghosts' omega (exchange 3)
-            if halo is not NULL_HALO:
-                self.engine.store("omega", omega)
+            yield from halo.exchange_ghosts(self, "omega", ("omega",))  # ghosts' omega (exchange 3)
             self._run(st.CONFINEMENT, prm=prm)                     # omega            -> a (+=)
 
     def _choose_dt(self, dt_cap, stats):
@@ -469,10 +466,8 @@ class Simulation:
         yield from self.solver.refresh(halo, prm)  # DFSPH: the pressure the next step would solve for
 
     def _exchange_fields(self, halo):
-        """Exchange 2; a device takes the ghosts' rho, p the halo wrote into the host mirror."""
+        """Exchange 2: the ghosts' rho, p (written where the backend keeps them)."""
         yield from halo.exchange_fields(self)
-        if halo is not NULL_HALO:
-            self.engine.to_device(("rho", "p"))
 
     def synchronised_velocity(self):
         """Owned rows' velocity at the full step (leapfrog stores half-step velocities)."""

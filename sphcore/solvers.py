@@ -197,10 +197,7 @@ class DFSPH(WCSPH):
         """Ghost rows of a per-row array (lam, v, v*) from their owners; nothing for one process."""
         if halo is NULL_HALO:
             return
-        sim = self.sim
-        host = sim.engine.fetch(name)
-        yield from halo.exchange_ghosts(sim, phase, {name: host}, kind="solver")
-        sim.engine.store(name, host)
+        yield from halo.exchange_ghosts(self.sim, phase, (name,), kind="solver")
 
 
 SOLVERS = {"wcsph": WCSPH, "dfsph": DFSPH}  # sph.solver -> its class

@@ -71,3 +71,31 @@ def test_balanced_cuts_equalise_particle_counts():
     counts = np.bincount(dec.owner(cells), minlength=4)
     assert counts.max() / counts.mean() < 1.25
     assert all(b - a >= 2 for a, b in zip(dec.cuts[0][:-1], dec.cuts[0][1:]))
+
+
+@pytest.mark.fast
+@pytest.mark.parametrize("dims,periodic", [
+    ((4, 1, 1), (False, False, False)),
+    ((2, 2, 1), (False, False, False)),
+    ((3, 1, 1), (True, False, False)),
+    ((2, 2, 2), (True, True, False)),
+    ((3, 2, 2), (True, True, True)),
+])
+def test_zone_code_is_the_owner_and_the_outgoing_zones(dims, periodic):
+    """decomposition.zone_code (exchange 1's question, asked on the host or a GPU) gives every cell the
+    rank Decomposition.owner gives it and, bit b, whether it lies in the incoming zone of neighbour b
+    (Decomposition.outgoing), on balanced, uneven cuts."""
+    from sphcore.decomposition import zone_codes, zone_tables
+    ncell = (9, 7, 6)
+    rng = np.random.default_rng(3)
+    cells = all_cells(ncell)
+    dec = Decomposition.balanced(ncell, dims, cells[rng.integers(0, len(cells), 400)], periodic)
+    for rank in range(dec.n_peers):
+        neighbours = dec.neighbours(rank)
+        owner = np.empty(len(cells), dtype=np.int64)
+        mask = np.empty(len(cells), dtype=np.int64)
+        zone_codes(cells, *zone_tables(dec, rank, neighbours), owner, mask)
+        assert np.array_equal(owner, dec.owner(cells))
+        for b, q in enumerate(neighbours):
+            assert np.array_equal((mask >> b) & 1, dec.outgoing(cells, rank, q).astype(np.int64)), (rank, q)
+        assert not (mask >> len(neighbours)).any()

@@ -12,7 +12,8 @@ import numpy as np
 
 from sphcore.backends.engine import Engine
 from sphcore.backends.generate import cpu_source, load_cpu_module
-from sphcore.state import FIELDS as STATE_FIELDS
+from sphcore.decomposition import zone_codes, zone_tables
+from sphcore.state import CARRIED, EXTRA_PREFIX, FIELDS as STATE_FIELDS, ParticleState
 
 _DRIVERS = {}  # (stage name, choice values) -> the driver
 
@@ -50,6 +51,8 @@ class CpuStages(Engine):
         s = sim._state
         if name in STATE_FIELDS:
             return getattr(s, name)
+        if name.startswith(EXTRA_PREFIX):
+            return s.extra[name[len(EXTRA_PREFIX):]]
         if name == "kappa":
             return s.extra["kappa"]
         if name == "rho_c":  # the carried density; unused (a placeholder row) with summation density
@@ -69,16 +72,46 @@ class CpuStages(Engine):
     def pull(self, state):
         pass
 
-    def to_device(self, names):
-        pass
+    def _sorted_rows(self, rows):
+        """Rows numbered before the grid sort -> their rows now (the sort's inverse permutation)."""
+        perm = self.sim.grid.last_permutation
+        where = np.empty(len(perm), dtype=np.int64)
+        where[perm] = np.arange(len(perm))
+        return where[np.asarray(rows, dtype=np.int64)]
 
-    def fetch(self, name):
-        """The array a halo exchange reads and fills (omega, lam, v, v_star): here the array itself."""
+    def carried_names(self) -> tuple:
+        return CARRIED + tuple(EXTRA_PREFIX + k for k in self.sim._state.extra)
+
+    def rows_of(self, names, rows, renumber: bool = True) -> dict:
         self.begin()
-        return self.array(name)
+        now = self._sorted_rows(rows) if renumber else np.asarray(rows, dtype=np.int64)
+        return {name: self.array(name)[now] for name in names}
 
-    def store(self, name, host):
-        pass
+    def set_rows(self, values: dict, rows):
+        now = self._sorted_rows(rows)
+        for name, v in values.items():
+            self.array(name)[now] = v
+
+    def zone_rows(self, dec, rank: int, neighbours) -> tuple:
+        s = self.sim._state
+        n = s.n_owned
+        cells = self.sim.grid.cells_of(s.x[:n])
+        owner = np.empty(n, dtype=np.int64)
+        mask = np.empty(n, dtype=np.int64)
+        zone_codes(cells, *zone_tables(dec, rank, neighbours), owner, mask)
+        rows = np.nonzero((owner != rank) | (mask != 0))[0]
+        return rows, owner[rows], mask[rows]
+
+    def rebuild(self, leaving, owned_in: dict, ghosts_in: dict):
+        s = self.sim._state
+        n = s.n_owned
+        keep = np.ones(n, dtype=bool)
+        keep[leaving] = False
+        own = s.carried_arrays(n)
+        new = ParticleState.from_carried({k: np.concatenate([a[keep], owned_in[k], ghosts_in[k]])
+                                          for k, a in own.items()}, self.dtype)
+        new.n_owned = n - len(leaving) + len(owned_in["id"])
+        self.sim.state = new
 
     def bin(self):
         """x -> (cell, id) order, and the neighbour lists unless the passes walk the cells."""

@@ -32,6 +32,7 @@ import numba
 import numpy as np
 from numba import cuda
 
+from sphcore import decomposition
 from sphcore import grid as grid_mod
 from sphcore import state as state_fields
 from sphcore.backends import BackendUnavailable
@@ -114,6 +115,32 @@ def zero(a):
     else:
         from numba.cuda.cudadrv.driver import device_memset
         device_memset(a, 0, a.nbytes)
+
+
+class Traffic:
+    """Bytes copied between host and device (summary.json ``device_transfer``): every explicit copy of
+    the backend goes through ``up`` and ``down``."""
+
+    def __init__(self):
+        self.to_device = 0
+        self.to_host = 0
+
+    def up(self, host: np.ndarray, dev=None):
+        """``host`` to the device: into ``dev`` (same shape), or a new device array (returned)."""
+        self.to_device += host.nbytes
+        if dev is None:
+            return cuda.to_device(host)
+        dev.copy_to_device(host)
+        return dev
+
+    def down(self, dev) -> np.ndarray:
+        """A host copy of device array ``dev``."""
+        host = dev.copy_to_host()
+        self.to_host += host.nbytes
+        return host
+
+    def summary(self) -> dict:
+        return {"to_device_bytes": int(self.to_device), "to_host_bytes": int(self.to_host)}
 
 
 # -- physics kernels: generated from the stage declarations (one per stage and choice combination) --
@@ -229,28 +256,109 @@ def inclusive_scan(a, n: int, levels=None):
 
 
 @cuda.jit
+def _fill_real(a, n, value):
+    i = cuda.grid(1)
+    if i < n:
+        a[i] = value
+
+
+@cuda.jit
 def _copy_1d(src, n, dst):
     i = cuda.grid(1)
     if i < n:
         dst[i] = src[i]
 
 
-@functools.cache
-def gather_kernel(ndims: tuple):
-    """One kernel gathering every sorted field, dst_f[k] = src_f[perm[k]] for each field f (``ndims``:
-    each field's number of dimensions, 1 or 2), called as kernel(perm, n, src_0, dst_0, src_1, ...):
-    the grid's reorder is one launch, not one per field (the grid stage is launch-bound below
-    millions of particles)."""
+def _row_copy_kernel(ndims: tuple, scatter: bool):
+    """dst_f[k] = src_f[rows[k]] (gather) or dst_f[rows[k]] = src_f[k] (scatter) for k < n and each
+    field f (``ndims``: each field's number of dimensions, 1 or 2), called as
+    kernel(rows, n, src_0, dst_0, src_1, dst_1, ...)."""
+    to, fro = ("i", "k") if scatter else ("k", "i")
     body = []
     for f, nd in enumerate(ndims):
-        body.append(f"        d{f}[k] = s{f}[i]" if nd == 1 else
-                    f"        for c in range(s{f}.shape[1]):\n            d{f}[k, c] = s{f}[i, c]")
+        body.append(f"        d{f}[{to}] = s{f}[{fro}]" if nd == 1 else
+                    f"        for c in range(s{f}.shape[1]):\n            d{f}[{to}, c] = s{f}[{fro}, c]")
     args = ", ".join(f"s{f}, d{f}" for f in range(len(ndims)))
-    source = (f"def gather(perm, n, {args}):\n    k = cuda.grid(1)\n    if k < n:\n        i = perm[k]\n"
+    source = (f"def copy_rows(rows, n, {args}):\n    k = cuda.grid(1)\n    if k < n:\n        i = rows[k]\n"
               + "\n".join(body) + "\n")
     namespace = {"cuda": cuda}
-    exec(compile(source, "<sphcore generated gather>", "exec"), namespace)  # noqa: S102
-    return cuda.jit(namespace["gather"])
+    exec(compile(source, "<sphcore generated row copy>", "exec"), namespace)  # noqa: S102
+    return cuda.jit(namespace["copy_rows"])
+
+
+@functools.cache
+def gather_kernel(ndims: tuple):
+    """One kernel gathering several fields' rows, dst_f[k] = src_f[rows[k]] (``ndims``: each field's
+    number of dimensions), called as kernel(rows, n, src_0, dst_0, src_1, ...): the grid's reorder is
+    one launch, not one per field (the grid stage is launch-bound below millions of particles), and a
+    halo message's rows are packed on the device."""
+    return _row_copy_kernel(ndims, scatter=False)
+
+
+@functools.cache
+def scatter_kernel(ndims: tuple):
+    """dst_f[rows[k]] = src_f[k] for each field: received halo rows unpacked on the device (rows are
+    distinct: no two threads write one row)."""
+    return _row_copy_kernel(ndims, scatter=True)
+
+
+@cuda.jit
+def _inverse_permutation(perm, n, where):
+    """where[perm[k]] = k: the row now of each row before the sort (a permutation: no collisions)."""
+    k = cuda.grid(1)
+    if k < n:
+        where[perm[k]] = k
+
+
+@cuda.jit
+def _compose(where, rows, n, out):
+    """out[k] = where[rows[k]]."""
+    k = cuda.grid(1)
+    if k < n:
+        out[k] = where[rows[k]]
+
+
+@cuda.jit
+def _fill_int64(a, n, value):
+    i = cuda.grid(1)
+    if i < n:
+        a[i] = value
+
+
+@cuda.jit
+def _set_at(a, rows, n, value):
+    """a[rows[k]] = value."""
+    k = cuda.grid(1)
+    if k < n:
+        a[rows[k]] = value
+
+
+@cuda.jit
+def _selected_rows(scanned, n, rows):
+    """rows[j] = i for the rows whose flag was 1, in order (``scanned``: the flags' inclusive scan)."""
+    i = cuda.grid(1)
+    if i < n:
+        before = scanned[i - 1] if i > 0 else 0
+        if scanned[i] > before:
+            rows[before] = i
+
+
+@functools.cache
+def _zone_kernel():
+    cell_index = _device(grid_mod.cell_index)
+    zone_code = _device(decomposition.zone_code)
+
+    @cuda.jit
+    def zone(x, n, origin, inv_cell, ncell, rank, cuts, dims, boxes, periodic, owner, mask, flag):
+        """decomposition.zone_code of owned row i; flag[i] = 1 where it leaves or is a neighbour's ghost."""
+        i = cuda.grid(1)
+        if i < n:
+            o, b = zone_code(cell_index(x, i, 0, origin, inv_cell, ncell), cell_index(x, i, 1, origin, inv_cell, ncell),
+                             cell_index(x, i, 2, origin, inv_cell, ncell), cuts, dims, boxes, ncell, periodic)
+            owner[i] = o
+            mask[i] = b
+            flag[i] = 1 if (o != rank or b != 0) else 0
+    return zone
 
 
 @cuda.jit
@@ -294,8 +402,9 @@ class DeviceGrid:
     ``counts`` and ``last_permutation`` read on the host are downloaded on demand (outputs, halo).
     """
 
-    def __init__(self, host: grid_mod.Grid, capacity: int = 64):
+    def __init__(self, host: grid_mod.Grid, traffic: Traffic, capacity: int = 64):
         self.host = host
+        self.traffic = traffic
         self.dtype = host.dtype
         self.ncells = host.ncells
         self.periodic = host.periodic
@@ -320,15 +429,17 @@ class DeviceGrid:
         self.n = 0
         self.n_query = 0
         self.contiguous = True
+        self._where = cuda.device_array(1, dtype=np.int64)  # the last sort's inverse permutation
+        self._where_valid = False
 
     # host-side views used by outputs and the halo
     @property
     def counts(self):
-        return self.d_counts[: self.n_query].copy_to_host()
+        return self.traffic.down(self.d_counts[: self.n_query])
 
     @property
     def last_permutation(self):
-        return self.d_perm[: self.n].copy_to_host()
+        return self.traffic.down(self.d_perm[: self.n])
 
     def cells_of(self, x):
         return self.host.cells_of(x)
@@ -364,14 +475,30 @@ class DeviceGrid:
         cell_ranges[blocks(self.ncells), BLOCK](self.ncells, self.bin_start, self.cell_begin, self.cell_end,
                                                 self.flags)
         self.contiguous = d.n_owned == n
+        self._where_valid = False
         d.reorder(self.d_perm)
         if check:
             self._read_flags()
 
+    def sorted_rows(self, rows) -> object:
+        """Device array of the rows now (after this step's sort) of ``rows`` (host indices numbered
+        before the sort): the inverse permutation is formed on the device once per sort."""
+        if not self._where_valid:
+            if self._where.shape[0] < self.n:
+                self._where = cuda.device_array(max(self.n, 1), dtype=np.int64)
+            if self.n:
+                _inverse_permutation[blocks(self.n), BLOCK](self.d_perm, self.n, self._where)
+            self._where_valid = True
+        rows = np.ascontiguousarray(rows, dtype=np.int64)
+        out = cuda.device_array(len(rows), dtype=np.int64)
+        if len(rows):
+            _compose[blocks(len(rows)), BLOCK](self._where, self.traffic.up(rows), len(rows), out)
+        return out
+
     def _read_flags(self) -> int:
         """The binning's counters from the device (a synchronisation): raise on a missed migration,
         else return the longest neighbour list (0 when none was built)."""
-        mixed, most = (int(v) for v in self.flags.copy_to_host())
+        mixed, most = (int(v) for v in self.traffic.down(self.flags))
         if mixed:
             raise RuntimeError(f"{mixed} grid cells hold both owned and ghost particles: a migration was missed")
         return most
@@ -412,8 +539,9 @@ class DeviceState:
     """The particle arrays on the device (the same fields, shapes and units as ParticleState), the
     per-step scratch of the solver, and the wall description."""
 
-    def __init__(self, dtype):
+    def __init__(self, dtype, traffic: Traffic):
         self.dtype = np.dtype(dtype)
+        self.traffic = traffic
         self.n = 0
         self.n_owned = 0
         self.arrays = {}
@@ -431,17 +559,17 @@ class DeviceState:
             host = np.ascontiguousarray(state.extra[name] if name in state.extra else getattr(state, name))
             dev = self.arrays.get(name)
             if dev is None or dev.shape != host.shape:
-                self.arrays[name] = cuda.to_device(host)
+                self.arrays[name] = self.traffic.up(host)
             else:
-                dev.copy_to_device(host)
+                self.traffic.up(host, dev)
 
     def download(self, state, names=FIELDS):
         """Copy device arrays into the host ParticleState (resized to the device's row count)."""
         for name in names:
-            setattr(state, name, self.arrays[name][: self.n].copy_to_host())
+            setattr(state, name, self.traffic.down(self.arrays[name][: self.n]))
         if names is FIELDS:
             for name in self.extra_names:
-                state.extra[name] = self.arrays[name][: self.n].copy_to_host()
+                state.extra[name] = self.traffic.down(self.arrays[name][: self.n])
         state.n_owned = self.n_owned
 
     def reorder(self, perm):
@@ -473,8 +601,9 @@ class CudaStages(Engine):
 
     def __init__(self, sim):
         self.dtype = sim.dtype
-        self.d = DeviceState(sim.dtype)
-        self.grid = DeviceGrid(sim.host_grid)
+        self.traffic = Traffic()
+        self.d = DeviceState(sim.dtype, self.traffic)
+        self.grid = DeviceGrid(sim.host_grid, self.traffic)
         w = sim.walls
         self.walls = {"wall_kind": cuda.to_device(np.ascontiguousarray(w.kind)),
                       "wall_data": cuda.to_device(np.ascontiguousarray(w.data)),
@@ -490,14 +619,21 @@ class CudaStages(Engine):
         super().__init__(sim)
 
     def allocate(self, shape, initial):
-        return cuda.to_device(np.full(shape, initial, dtype=self.dtype))
+        """A scratch array filled with ``initial`` on the device (nothing crosses PCIe: the scratch is
+        reallocated whenever the row count changes, every step for a peer whose ghosts change)."""
+        a = cuda.device_array(shape, dtype=self.dtype)
+        _fill_real[blocks(a.size), BLOCK](a.reshape(a.size), a.size, self.dtype.type(initial))
+        return a
 
     # -- host <-> device ---------------------------------------------------------------------------
+    def transfer(self) -> dict:
+        return self.traffic.summary()
+
     def walls_moved(self):
         """The moving walls' rows and velocities (motion.py) to the device: a few hundred bytes."""
         w = self.sim.walls
-        self.walls["wall_data"].copy_to_device(np.ascontiguousarray(w.data))
-        self.walls["wall_motion"].copy_to_device(np.ascontiguousarray(w.motion))
+        self.traffic.up(np.ascontiguousarray(w.data), self.walls["wall_data"])
+        self.traffic.up(np.ascontiguousarray(w.motion), self.walls["wall_motion"])
 
     def pull(self, state):
         """Bring the host mirror up to date (called by Simulation.state)."""
@@ -512,17 +648,104 @@ class CudaStages(Engine):
             self.device_stale = False
         self.scratch.resize(self.d.n)
 
-    def to_device(self, names):
-        """Upload host arrays changed in place (ghost rows of rho, p after exchange 2)."""
-        self.d.upload(self.sim._state, names)
-
-    def fetch(self, name):
-        """A host copy of a per-row array (omega, lam, v, v_star) for a halo exchange."""
+    def carried_names(self) -> tuple:
         self.push_if_needed()
-        return self.array(name).copy_to_host()
+        return SORTED + tuple(state_fields.EXTRA_PREFIX + k for k in self.d.extra_names)
 
-    def store(self, name, host):
-        self.array(name).copy_to_device(host)
+    def _selected(self, flags, n: int):
+        """Device int64 array of the rows i < n whose flag is 1, in order (flags is scanned in place)."""
+        if n == 0:
+            return cuda.device_array(0, dtype=np.int64)
+        inclusive_scan(flags, n)
+        count = int(self.traffic.down(flags[n - 1:n])[0])
+        rows = cuda.device_array(count, dtype=np.int64)
+        if count:
+            _selected_rows[blocks(n), BLOCK](flags, n, rows)
+        return rows
+
+    def rows_of(self, names, rows, renumber: bool = True) -> dict:
+        """The rows a halo message carries, gathered on the device: only they cross PCIe."""
+        self.push_if_needed()
+        if renumber:
+            now = self.grid.sorted_rows(rows)
+        else:
+            rows = np.ascontiguousarray(rows, dtype=np.int64)
+            now = self.traffic.up(rows) if len(rows) else cuda.device_array(0, dtype=np.int64)
+        m = now.shape[0]
+        out = {name: cuda.device_array((m,) + self.array(name).shape[1:], dtype=self.array(name).dtype)
+               for name in names}
+        if m:
+            pairs = [a for name in names for a in (self.array(name), out[name])]
+            gather_kernel(tuple(a.ndim for a in pairs[::2]))[blocks(m), BLOCK](now, m, *pairs)
+        return {name: self.traffic.down(a) for name, a in out.items()}
+
+    def zone_rows(self, dec, rank: int, neighbours) -> tuple:
+        """zone_code of every owned row on the device; only the zone's rows, owners and masks come back."""
+        self.push_if_needed()
+        n = self.d.n_owned
+        g = self.grid
+        tables = [self.traffic.up(t) for t in decomposition.zone_tables(dec, rank, neighbours)]
+        cuts, dims, boxes, _, periodic = tables
+        owner = cuda.device_array(max(n, 1), dtype=np.int64)
+        mask = cuda.device_array(max(n, 1), dtype=np.int64)
+        flags = cuda.device_array(max(n, 1), dtype=np.int64)
+        if n:
+            _zone_kernel()[blocks(n), BLOCK](self.d.x, n, g.d_origin, g.d_inv_cell, g.d_ncell, rank, cuts, dims,
+                                             boxes, periodic, owner, mask, flags)
+        rows = self._selected(flags, n)
+        m = rows.shape[0]
+        if not m:
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+        picked = {"owner": cuda.device_array(m, dtype=np.int64), "mask": cuda.device_array(m, dtype=np.int64)}
+        gather_kernel((1, 1))[blocks(m), BLOCK](rows, m, owner, picked["owner"], mask, picked["mask"])
+        return self.traffic.down(rows), self.traffic.down(picked["owner"]), self.traffic.down(picked["mask"])
+
+    def rebuild(self, leaving, owned_in: dict, ghosts_in: dict):
+        """The kept owned rows compacted on the device; only migrants and ghosts cross PCIe."""
+        self.push_if_needed()
+        d = self.d
+        n_old = d.n_owned
+        leaving = np.ascontiguousarray(leaving, dtype=np.int64)
+        flags = cuda.device_array(max(n_old, 1), dtype=np.int64)
+        if n_old:
+            _fill_int64[blocks(n_old), BLOCK](flags, n_old, 1)
+        if len(leaving):
+            _set_at[blocks(len(leaving)), BLOCK](flags, self.traffic.up(leaving), len(leaving), 0)
+        kept = self._selected(flags, n_old)
+        n_kept, m_in, g_in = kept.shape[0], len(owned_in["id"]), len(ghosts_in["id"])
+        n_new = n_kept + m_in + g_in
+        names = self.carried_names()
+        new = {}
+        for key in names:
+            src = self.array(key)
+            new[key] = cuda.device_array((n_new,) + src.shape[1:], dtype=src.dtype)
+        if n_kept:
+            pairs = [a for key in names for a in (self.array(key), new[key])]
+            gather_kernel(tuple(a.ndim for a in pairs[::2]))[blocks(n_kept), BLOCK](kept, n_kept, *pairs)
+        for key in names:
+            for lo, part in ((n_kept, owned_in[key]), (n_kept + m_in, ghosts_in[key])):
+                if len(part):
+                    self.traffic.up(np.ascontiguousarray(part, dtype=new[key].dtype), new[key][lo:lo + len(part)])
+        for key in names:
+            d.arrays[key[len(state_fields.EXTRA_PREFIX):] if key.startswith(state_fields.EXTRA_PREFIX) else key] = new[key]
+        for name in state_fields.DERIVED:
+            d.arrays[name] = self.allocate((n_new,) + state_fields.ROW_SHAPE[name], 0.0)
+        d.n = n_new
+        d.n_owned = n_kept + m_in
+        self.device_stale = False
+        self.host_stale = True
+        self.scratch.resize(n_new)
+
+    def set_rows(self, values: dict, rows):
+        """Received rows (a neighbour's ghosts) written on the device: only they cross PCIe."""
+        self.push_if_needed()
+        now = self.grid.sorted_rows(rows)
+        m = now.shape[0]
+        if m:
+            pairs = [a for name, v in values.items()
+                     for a in (self.traffic.up(np.ascontiguousarray(v, dtype=self.array(name).dtype)), self.array(name))]
+            scatter_kernel(tuple(a.ndim for a in pairs[::2]))[blocks(m), BLOCK](now, m, *pairs)
+        self.host_stale = True
 
     def begin(self):
         self.push_if_needed()
@@ -535,6 +758,8 @@ class CudaStages(Engine):
         d = self.d
         if name in FIELDS or name == "kappa":
             return d.arrays[name]
+        if name.startswith(state_fields.EXTRA_PREFIX):
+            return d.arrays[name[len(state_fields.EXTRA_PREFIX):]]
         if name == "rho_c":  # the carried density; unused (a placeholder row) with summation density
             return d.arrays["density"] if self.model.continuity else self.scratch.drho
         if name in self.scratch.arrays:
@@ -560,7 +785,7 @@ class CudaStages(Engine):
         if not stage.reduce:
             cuda.synchronize()
             return None
-        got = {t: self.out[t].copy_to_host() for t in kinds}
+        got = {t: self.traffic.down(self.out[t]) for t in kinds}
         values = [int(got[t][j]) if t == "int64" else float(got[t][j]) for t, j in slots]
         return values[0] if len(values) == 1 else tuple(values)
 
@@ -643,6 +868,7 @@ def _binning_signatures(t) -> dict:
         "sort_bins": (sort_bins, (n, i8v, i8v, i8v)),
         "cell_ranges": (cell_ranges, (n, i8v, i8v, i8v, i1)),
         "max_int": (_max_int, (i1, n, i1, n)),
+        "fill_real": (_fill_real, (v1, n, f)),
         "gather": (gather_kernel(tuple(1 + len(state_fields.ROW_SHAPE[f]) for f in SORTED)),
                    (i8v, n, *(a for f in SORTED for a in ((i8v,) * 2 if f == "id" else (t[f],) * 2)))),
         "scan_chunks": (_scan_chunks, (i8v, n, n, i8v)),

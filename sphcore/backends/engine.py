@@ -64,6 +64,44 @@ class Engine:
         """Before a stage: the backend's arrays are current and the scratch fits the state."""
         raise NotImplementedError
 
+    # -- rows for the halo (sphcore/halo.py): only the rows a neighbour needs leave the backend --------
+    def carried_names(self) -> tuple:
+        """The keys of the carried arrays (state.carried_layout): id, x, v, m, "extra_<name>"..."""
+        raise NotImplementedError
+
+    def rows_of(self, names, rows, renumber: bool = True) -> dict:
+        """{name: a host copy of rows ``rows`` of the per-row array ``name``} (state fields, carried
+        arrays as "extra_<name>", scratch). ``renumber``: ``rows`` number the rows as they were before
+        this step's grid sort (the order of exchange 1: exchange 2 and later); else as they are now."""
+        raise NotImplementedError
+
+    def set_rows(self, values: dict, rows):
+        """Write ``values[name]`` into rows ``rows`` (numbered before this step's grid sort) of each
+        array."""
+        raise NotImplementedError
+
+    def zone_rows(self, dec, rank: int, neighbours) -> tuple:
+        """Exchange 1's question to every owned row, answered where the rows live: (rows, owner, mask),
+        host int64 arrays, of the owned rows that leave this peer's block (owner != rank) or lie in a
+        neighbour's incoming zone (bit b of mask: neighbours[b]; decomposition.zone_code), ascending."""
+        raise NotImplementedError
+
+    def rebuild(self, leaving, owned_in: dict, ghosts_in: dict):
+        """The particles after exchange 1: the owned rows but ``leaving`` (ascending), in their order,
+        then the rows of ``owned_in`` (migrants; carried arrays by key), all owned, then the rows of
+        ``ghosts_in`` as ghosts. Derived fields start at zero."""
+        raise NotImplementedError
+
+    def row_layout(self, name) -> tuple:
+        """(the shape of one row, dtype) of per-row array ``name``: what a halo message of it holds."""
+        a = self.array(name)
+        return a.shape[1:], a.dtype
+
+    def transfer(self) -> dict | None:
+        """Bytes copied between host and device so far ({"to_device_bytes", "to_host_bytes"}), or None
+        where the particles live on the host."""
+        return None
+
     def walls_moved(self):
         """The model's moving walls were moved (boundaries.Walls.at): where the backend keeps its own
         copy of the wall rows, update it. The host backend reads the model's arrays: nothing to do."""
