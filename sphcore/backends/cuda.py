@@ -855,7 +855,7 @@ def _binning_signatures(t) -> dict:
     """{label: (kernel, PTX signature)} of the neighbour-list and binning kernels."""
     from numba import types
     f, v1, v2, nbr = t["dt"], t["rho"], t["x"], t["nbr"]
-    i1, i8v = t["counts"], types.Array(types.int64, 1, "C")
+    i1, i8v, i8m = t["counts"], types.Array(types.int64, 1, "C"), types.Array(types.int64, 2, "C")
     n = types.int64
     cell_keys, scatter, sort_bins, cell_ranges = _binning_kernels()
     sigs = {}
@@ -869,6 +869,13 @@ def _binning_signatures(t) -> dict:
         "cell_ranges": (cell_ranges, (n, i8v, i8v, i8v, i1)),
         "max_int": (_max_int, (i1, n, i1, n)),
         "fill_real": (_fill_real, (v1, n, f)),
+        "inverse_permutation": (_inverse_permutation, (i8v, n, i8v)),
+        "compose": (_compose, (i8v, i8v, n, i8v)),
+        "fill_int64": (_fill_int64, (i8v, n, types.int64)),
+        "set_at": (_set_at, (i8v, i8v, n, types.int64)),
+        "selected_rows": (_selected_rows, (i8v, n, i8v)),
+        "zone": (_zone_kernel(), (v2, n, v1, v1, i8v, n, i8m, i8v, i8m, i8v, i8v, i8v, i8v)),
+        "scatter_rows": (scatter_kernel((1, 2)), (i8v, n, v1, v1, v2, v2)),
         "gather": (gather_kernel(tuple(1 + len(state_fields.ROW_SHAPE[f]) for f in SORTED)),
                    (i8v, n, *(a for f in SORTED for a in ((i8v,) * 2 if f == "id" else (t[f],) * 2)))),
         "scan_chunks": (_scan_chunks, (i8v, n, n, i8v)),
