@@ -6,7 +6,8 @@
 #                      is warm): scene validation, kernels and neighbours, conservation, 1 process vs 2 peers
 #                      bitwise, hostile messages, the wire format, CLI errors; a subset of make test
 #   make test-slow     the heavier suites (pytest -m slow)
-#   make test-gpu      on a machine with a GPU: CPU/CUDA parity, a 200-step run, the GPU benchmark (runs/gpu/log.txt)
+#   make test-gpu      on a machine with a GPU: CPU/CUDA parity, a 200-step run, the GPU benchmark, launch
+#                      costs, 300 M particles stepping, two peers on one GPU (runs/gpu/log.txt; ~9 min)
 #   make bench         sph bench (add the reference codes with: bash scripts/setup_bench.sh; make bench-external)
 
 PY := .venv/bin/python
