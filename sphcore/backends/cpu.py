@@ -35,6 +35,7 @@ class CpuStages(Engine):
 
     def __init__(self, sim):
         self.dtype = sim.dtype
+        self._where = None
         super().__init__(sim)
 
     def allocate(self, shape, initial):
@@ -73,11 +74,13 @@ class CpuStages(Engine):
         pass
 
     def _sorted_rows(self, rows):
-        """Rows numbered before the grid sort -> their rows now (the sort's inverse permutation)."""
-        perm = self.sim.grid.last_permutation
-        where = np.empty(len(perm), dtype=np.int64)
-        where[perm] = np.arange(len(perm))
-        return where[np.asarray(rows, dtype=np.int64)]
+        """Rows numbered before the grid sort -> their rows now (the sort's inverse permutation, formed
+        once per sort: a DFSPH solve exchanges rows twice an iteration)."""
+        if self._where is None:
+            perm = self.sim.grid.last_permutation
+            self._where = np.empty(len(perm), dtype=np.int64)
+            self._where[perm] = np.arange(len(perm))
+        return self._where[np.asarray(rows, dtype=np.int64)]
 
     def carried_names(self) -> tuple:
         return CARRIED + tuple(EXTRA_PREFIX + k for k in self.sim._state.extra)
@@ -115,6 +118,7 @@ class CpuStages(Engine):
 
     def bin(self):
         """x -> (cell, id) order, and the neighbour lists unless the passes walk the cells."""
+        self._where = None  # the new sort's inverse permutation is formed when a halo first needs it
         if self.model.neighbours == "walk":
             self.sim.grid.sort(self.sim._state)
         else:
