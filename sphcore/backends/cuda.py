@@ -256,7 +256,8 @@ def inclusive_scan(a, n: int, levels=None):
 
 
 @cuda.jit
-def _fill_real(a, n, value):
+def _fill(a, n, value):
+    """a[:n] = value (any dtype: compiled per argument types)."""
     i = cuda.grid(1)
     if i < n:
         a[i] = value
@@ -295,6 +296,13 @@ def gather_kernel(ndims: tuple):
     return _row_copy_kernel(ndims, scatter=False)
 
 
+def gather_rows(rows, m: int, sources, targets):
+    """targets[f][k] = sources[f][rows[k]] for k < m and every field f, in one launch."""
+    if m:
+        pairs = [a for pair in zip(sources, targets) for a in pair]
+        gather_kernel(tuple(a.ndim for a in sources))[blocks(m), BLOCK](rows, m, *pairs)
+
+
 @functools.cache
 def scatter_kernel(ndims: tuple):
     """dst_f[rows[k]] = src_f[k] for each field: received halo rows unpacked on the device (rows are
@@ -316,13 +324,6 @@ def _compose(where, rows, n, out):
     k = cuda.grid(1)
     if k < n:
         out[k] = where[rows[k]]
-
-
-@cuda.jit
-def _fill_int64(a, n, value):
-    i = cuda.grid(1)
-    if i < n:
-        a[i] = value
 
 
 @cuda.jit
@@ -575,17 +576,17 @@ class DeviceState:
     def reorder(self, perm):
         """Rows of the sorted fields (and extra arrays) gathered by ``perm`` (row k <- row perm[k]) in one
         launch; double-buffered."""
-        pairs = []
+        sources, targets = [], []
         for name in SORTED + self.extra_names:
             src = self.arrays[name]
             dst = self._spare.get(name)
             if dst is None or dst.shape != src.shape or dst.dtype != src.dtype:
                 dst = cuda.device_array(src.shape, dtype=src.dtype)
-            pairs += [src, dst]
+            sources.append(src)
+            targets.append(dst)
             self.arrays[name] = dst
             self._spare[name] = src
-        if self.n:
-            gather_kernel(tuple(a.ndim for a in pairs[::2]))[blocks(self.n), BLOCK](perm, self.n, *pairs)
+        gather_rows(perm, self.n, sources, targets)
 
     def __getattr__(self, name):
         arrays = self.__dict__.get("arrays", {})
@@ -622,7 +623,7 @@ class CudaStages(Engine):
         """A scratch array filled with ``initial`` on the device (nothing crosses PCIe: the scratch is
         reallocated whenever the row count changes, every step for a peer whose ghosts change)."""
         a = cuda.device_array(shape, dtype=self.dtype)
-        _fill_real[blocks(a.size), BLOCK](a.reshape(a.size), a.size, self.dtype.type(initial))
+        _fill[blocks(a.size), BLOCK](a.reshape(a.size), a.size, self.dtype.type(initial))
         return a
 
     # -- host <-> device ---------------------------------------------------------------------------
@@ -674,9 +675,7 @@ class CudaStages(Engine):
         m = now.shape[0]
         out = {name: cuda.device_array((m,) + self.array(name).shape[1:], dtype=self.array(name).dtype)
                for name in names}
-        if m:
-            pairs = [a for name in names for a in (self.array(name), out[name])]
-            gather_kernel(tuple(a.ndim for a in pairs[::2]))[blocks(m), BLOCK](now, m, *pairs)
+        gather_rows(now, m, [self.array(name) for name in names], [out[name] for name in names])
         return {name: self.traffic.down(a) for name, a in out.items()}
 
     def zone_rows(self, dec, rank: int, neighbours) -> tuple:
@@ -697,7 +696,7 @@ class CudaStages(Engine):
         if not m:
             return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
         picked = {"owner": cuda.device_array(m, dtype=np.int64), "mask": cuda.device_array(m, dtype=np.int64)}
-        gather_kernel((1, 1))[blocks(m), BLOCK](rows, m, owner, picked["owner"], mask, picked["mask"])
+        gather_rows(rows, m, [owner, mask], [picked["owner"], picked["mask"]])
         return self.traffic.down(rows), self.traffic.down(picked["owner"]), self.traffic.down(picked["mask"])
 
     def rebuild(self, leaving, owned_in: dict, ghosts_in: dict):
@@ -708,7 +707,7 @@ class CudaStages(Engine):
         leaving = np.ascontiguousarray(leaving, dtype=np.int64)
         flags = cuda.device_array(max(n_old, 1), dtype=np.int64)
         if n_old:
-            _fill_int64[blocks(n_old), BLOCK](flags, n_old, 1)
+            _fill[blocks(n_old), BLOCK](flags, n_old, 1)
         if len(leaving):
             _set_at[blocks(len(leaving)), BLOCK](flags, self.traffic.up(leaving), len(leaving), 0)
         kept = self._selected(flags, n_old)
@@ -719,9 +718,7 @@ class CudaStages(Engine):
         for key in names:
             src = self.array(key)
             new[key] = cuda.device_array((n_new,) + src.shape[1:], dtype=src.dtype)
-        if n_kept:
-            pairs = [a for key in names for a in (self.array(key), new[key])]
-            gather_kernel(tuple(a.ndim for a in pairs[::2]))[blocks(n_kept), BLOCK](kept, n_kept, *pairs)
+        gather_rows(kept, n_kept, [self.array(key) for key in names], [new[key] for key in names])
         for key in names:
             for lo, part in ((n_kept, owned_in[key]), (n_kept + m_in, ghosts_in[key])):
                 if len(part):
@@ -868,10 +865,10 @@ def _binning_signatures(t) -> dict:
         "sort_bins": (sort_bins, (n, i8v, i8v, i8v)),
         "cell_ranges": (cell_ranges, (n, i8v, i8v, i8v, i1)),
         "max_int": (_max_int, (i1, n, i1, n)),
-        "fill_real": (_fill_real, (v1, n, f)),
+        "fill_real": (_fill, (v1, n, f)),
         "inverse_permutation": (_inverse_permutation, (i8v, n, i8v)),
         "compose": (_compose, (i8v, i8v, n, i8v)),
-        "fill_int64": (_fill_int64, (i8v, n, types.int64)),
+        "fill_int64": (_fill, (i8v, n, types.int64)),
         "set_at": (_set_at, (i8v, i8v, n, types.int64)),
         "selected_rows": (_selected_rows, (i8v, n, i8v)),
         "zone": (_zone_kernel(), (v2, n, v1, v1, i8v, n, i8m, i8v, i8m, i8v, i8v, i8v, i8v)),
