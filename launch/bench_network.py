@@ -5,8 +5,11 @@ Cases, every one the same 3D dam break (about N particles, fixed dt, ``--steps``
 
     loopback, TLS          sph run --peers 2                     (the default)
     loopback, plain TCP    sph run --peers 2 --insecure
+    loopback, no overlap   sph run --peers 2 --set decomposition.overlap=false
     hosts, TLS, D ms       sph run --hosts over two network-namespace hosts (launch/netns.py),
-                           D = 0, 1 and 5 ms each way (root only; skipped with the reason otherwise)
+                           D = 0, 1 and 5 ms each way (root only; skipped with the reason otherwise),
+                           each also with decomposition.overlap = false (waiting for every exchange
+                           before computing: what overlapping the interior rows gains)
 
 The cases run in turn, ``--repeat`` rounds (ABCDE ABCDE ...), so a slow minute of the machine
 falls on every case alike; the figure is the median of each case's particle-steps/s (the runs' own
@@ -41,9 +44,12 @@ def network_cases(scene_path: Path, fixed: list[str], steps: int, precision: str
     for kv in fixed:
         base += ["--set", kv]
     why_not = netns.available()
-    cases = [("loopback, TLS", None, []), ("loopback, plain TCP", None, ["--insecure"])]
+    no_overlap = ["--set", "decomposition.overlap=false"]
+    cases = [("loopback, TLS", None, []), ("loopback, plain TCP", None, ["--insecure"]),
+             ("loopback, TLS, no overlap", None, no_overlap)]
     if why_not is None:
-        cases += [(f"2 hosts, TLS, {d:g} ms", d, []) for d in DELAYS_MS]
+        cases += [case for d in DELAYS_MS
+                  for case in ((f"2 hosts, TLS, {d:g} ms", d, []), (f"2 hosts, TLS, {d:g} ms, no overlap", d, no_overlap))]
     else:
         print(f"  (namespace hosts skipped: {why_not})", file=sys.stderr)
     figures = {name: [] for name, _, _ in cases}
@@ -57,7 +63,7 @@ def network_cases(scene_path: Path, fixed: list[str], steps: int, precision: str
                     with netns.TestHosts(2, delay_ms=delay) as net:
                         if delay:
                             net.start_relays(PORT)
-                        cmd = base + ["--hosts", str(net.hosts_file(tmp, PORT)), "--ssh", net.ssh_command(tmp),
+                        cmd = base + extra + ["--hosts", str(net.hosts_file(tmp, PORT)), "--ssh", net.ssh_command(tmp),
                                       "--remote-python", sys.executable,
                                       "--remote-dir", str(Path(__file__).resolve().parent.parent)]
                         if net.listen_host:
@@ -65,7 +71,7 @@ def network_cases(scene_path: Path, fixed: list[str], steps: int, precision: str
                         value = _run(cmd, tmp / "out")
             if value is not None:
                 figures[name].append(value)
-            print(f"  round {round_ + 1}/{repeat}  {name:<22} "
+            print(f"  round {round_ + 1}/{repeat}  {name:<34} "
                   f"{value:.3e} particle-steps/s" if value else f"  {name}: failed", flush=True)
     results = []
     reference = statistics.median(figures["loopback, TLS"]) if figures["loopback, TLS"] else None
@@ -75,7 +81,8 @@ def network_cases(scene_path: Path, fixed: list[str], steps: int, precision: str
             continue
         median = statistics.median(figures[name])
         ratio = median / reference if reference else None
-        results.append({"case": name, "delay_ms": delay, "insecure": bool(extra), "runs": figures[name],
+        results.append({"case": name, "delay_ms": delay, "insecure": "--insecure" in extra,
+                        "overlap": "decomposition.overlap=false" not in extra, "runs": figures[name],
                         "particle_steps_per_s": median, "ratio_to_loopback_tls": ratio})
-        print(f"  {name:<22} {median:.3e}  ({ratio:.3f}x)" if ratio else f"  {name:<22} {median:.3e}")
+        print(f"  {name:<34} {median:.3e}  ({ratio:.3f}x)" if ratio else f"  {name:<34} {median:.3e}")
     return results

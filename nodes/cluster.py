@@ -70,7 +70,8 @@ class InProcessCluster:
             self.peers.append(sim)
             self.endpoints.append(self.network.endpoint(rank))
             self.halos.append(PeerHalo(self.dec, rank, self.endpoints[rank],
-                                       scene.decomposition.balance_every, scene.decomposition.balance_by))
+                                       scene.decomposition.balance_every, scene.decomposition.balance_by,
+                                       scene.decomposition.overlap))
         self.t_start, self.t_setup = t_start, time.perf_counter() - t_start
 
     def step(self):

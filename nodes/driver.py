@@ -467,6 +467,7 @@ def _gather(peer: PeerRun, recorder: PeerRecorder, controls: Controls, loop: dic
         "neighbours_max_over_run": sim.max_neighbours, "rebalances": halo.rebalances,
         "dropped_messages": endpoint.dropped, "dropped": endpoint.drops, "threads": numba.get_num_threads(),
         "device_transfer": sim.engine.transfer(),
+        "overlap": {"interior_rows": halo.overlapped_rows, "boundary_rows": halo.after_rows},
         "cuts": [list(c) for c in halo.dec.cuts], "controls": controls.applied,
     }
     final = {"id": s.id[:n], "x": s.x[:n], "v": np.ascontiguousarray(v[:n]), "rho": s.rho[:n],
@@ -502,7 +503,8 @@ def run_peer(scene: Scene, rank: int, world: int, endpoint: Endpoint, plan: RunP
         checkpoint.restore(sim, resume)
     dec = decomposition_for(scene, sim.grid, world, sim.state.x)
     take_block(sim, dec, rank)
-    halo = PeerHalo(dec, rank, endpoint, scene.decomposition.balance_every, scene.decomposition.balance_by)
+    halo = PeerHalo(dec, rank, endpoint, scene.decomposition.balance_every, scene.decomposition.balance_by,
+                    scene.decomposition.overlap)
     endpoint.at_step(sim.step_index)  # earlier steps are replays; steps far ahead are not from this run
     endpoint.set_message_limit(message_limit(sim))
     t_setup = time.perf_counter() - t_start

@@ -380,15 +380,17 @@ def _final_check(sim: Simulation, q: int, own: dict, parts: list, peers: list):
                 and stats["particles_final"] == n
                 and all(isinstance(stats[k], list) and len(stats[k]) == len(own[k])
                         for k in ("particles", "step_s", "wait_s"))
-                and _transfer_ok(stats["device_transfer"], own["device_transfer"])):
+                and _counts_ok(stats["device_transfer"], own["device_transfer"])
+                and _counts_ok(stats["overlap"], own["overlap"])):
             raise Reject("stats", f"{what}: statistics are not a peer's of this run")
         peers.append(stats)
 
     return check
 
 
-def _transfer_ok(theirs, own) -> bool:
-    """A peer's ``device_transfer`` has the form of rank 0's: None, or byte counts (whole numbers >= 0)."""
+def _counts_ok(theirs, own) -> bool:
+    """A peer's ``device_transfer`` or ``overlap`` has the form of rank 0's: None, or counts (whole
+    numbers >= 0) under the same keys."""
     if own is None or theirs is None:
         return own is None and theirs is None
     return (isinstance(theirs, dict) and set(theirs) == set(own)
@@ -455,8 +457,15 @@ def peer_summary(peers: list[dict], base: dict, world: int, itemsize: int) -> di
             "rebalances": p["rebalances"], "dropped_messages": p["dropped_messages"], "dropped": p["dropped"],
             "cuts": p["cuts"],
             "controls": p["controls"],
+            "overlap": p["overlap"],
         } for p in peers],
     }
+    interior = sum(p["overlap"]["interior_rows"] for p in peers)
+    boundary = sum(p["overlap"]["boundary_rows"] for p in peers)
+    out["overlap"] = {
+        "interior_fraction": interior / (interior + boundary) if interior + boundary else None,
+        "note": "all peers: of the rows whose accelerations (and vorticity confinement) waited for a halo "
+                "exchange, the share computed while its messages travelled (rows out of reach of every ghost)"}
     if steps:
         out["bytes_per_step"] = {ph: b / max(1, base["steps"]) for ph, b in bytes_per_phase.items()}
     if peers[0]["device_transfer"] is not None:  # checked in _final_check: byte counts, or None on every peer

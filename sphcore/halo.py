@@ -1,11 +1,14 @@
 """Halo exchanges of a step: what a peer sends and receives, independent of how bytes travel.
 
-``Simulation.stages`` calls three hooks; each is a generator that yields while it waits for
-messages (a single process never waits):
+``Simulation.stages`` calls these hooks; each but ``send_ghosts`` and ``split_rows`` is a generator
+that yields while it waits for messages (a single process never waits):
 
     exchange_positions   1a migrants change owner; 1b ghosts' id, x, v, m arrive (exchange 1)
-    exchange_fields      ghosts' rho, p arrive, in the order of exchange 1     (exchange 2)
-    exchange_ghosts      any other per-particle value of the ghosts (vorticity omega), same order
+    send_ghosts          the ghosts' rows of per-particle values go out, in the order of exchange 1:
+                         rho, p (exchange 2), vorticity omega, a DFSPH solve's lambda and v
+    receive_ghosts       ... and the neighbours' arrive into our ghost rows (exchange_ghosts: both)
+    split_rows           while a phase is on its way: (interior, boundary) owned rows, the interior
+                         ones out of reach of every ghost (computed meanwhile: solver._overlapped)
     reduce_max           the global max of the step statistics (adaptive dt, health check)
 
 Load balancing (``balance_every`` > 0): at the start of exchange 1 of every K-th step the peers sum
@@ -86,13 +89,19 @@ class NullHalo:
         return
         yield
 
-    def exchange_fields(self, sim):
+    def send_ghosts(self, sim, phase, names, kind=None):
+        pass
+
+    def receive_ghosts(self, sim, phase):
         return
         yield
 
     def exchange_ghosts(self, sim, phase, names, kind=None):
         return
         yield
+
+    def split_rows(self, sim, phase):
+        return None
 
     def reduce_max(self, sim, stats):
         return stats
@@ -135,8 +144,10 @@ STATS = 4                      # max |v|^2, max |a|^2, max compression, rows hol
 class PeerHalo:
     """Halo of peer ``rank`` in decomposition ``dec`` over ``transport``."""
 
-    def __init__(self, dec, rank: int, transport, balance_every: int = 0, balance_by: str = "particles"):
+    def __init__(self, dec, rank: int, transport, balance_every: int = 0, balance_by: str = "particles",
+                 overlap: bool = True):
         self.rank = rank
+        self.overlap = overlap   # split_rows answers (decomposition.overlap); else every exchange is awaited first
         self.transport = transport
         self.balance_every = balance_every
         self.balance_by = balance_by
@@ -153,6 +164,9 @@ class PeerHalo:
         self._balanced_at = -1
         self._sent_rows = {}     # neighbour -> rows (before the grid sort) sent as its ghosts
         self._ghost_rows = {}    # neighbour -> (first, last) rows (before the sort) of its ghosts
+        self._pending = {}       # phase -> names: ghost rows sent and not yet received (send_ghosts)
+        self.overlapped_rows = 0  # rows computed while a phase travelled (split_rows), over the run
+        self.after_rows = 0       # rows computed after it arrived
 
     def _set_decomposition(self, dec):
         self.dec = dec
@@ -257,6 +271,9 @@ class PeerHalo:
 
     def exchange_positions(self, sim):
         step = sim.step_index
+        if self._pending:
+            raise RuntimeError(f"peer {self.rank}, step {step}: ghost rows of {sorted(self._pending)} were sent and "
+                               "never received")
         if self.balance_every and step > 0 and step % self.balance_every == 0 and self._balanced_at != step:
             self._balanced_at = step
             yield from self.rebalance(sim)
@@ -310,24 +327,48 @@ class PeerHalo:
             first += count
         engine.rebuild(gone, migrants, {k: np.concatenate([g[k] for g in ghosts]) for k in names})
 
-    def exchange_fields(self, sim):
-        yield from self.exchange_ghosts(sim, "fields", ("rho", "p"))
-
     def exchange_ghosts(self, sim, phase, names, kind=None):
+        """send_ghosts, then receive_ghosts."""
+        self.send_ghosts(sim, phase, names, kind)
+        yield from self.receive_ghosts(sim, phase)
+
+    def send_ghosts(self, sim, phase, names, kind=None):
         """Send the rows of the per-row arrays ``names`` that are the neighbours' ghosts, in the order of
-        exchange 1; fill our ghost rows with theirs. The backend packs and unpacks the rows where the
-        arrays live (``Engine.rows_of``, ``set_rows``: on a GPU only these rows cross PCIe).
-        ``phase`` names the message (unique within a step); bytes are counted under ``kind``
-        (default: the phase)."""
+        exchange 1 (``receive_ghosts`` takes theirs). The backend packs the rows where the arrays live
+        (``Engine.rows_of``: on a GPU only these rows cross PCIe). ``phase`` names the message
+        (unique within a step); bytes are counted under ``kind`` (default: the phase)."""
+        if phase in self._pending:
+            raise RuntimeError(f"peer {self.rank}, step {sim.step_index}: phase {phase!r} sent twice")
         step = sim.step_index
         engine = sim.engine
         for q in self.neighbours:
             self._send(q, (step, phase), engine.rows_of(names, self._sent_rows[q]), kind or phase)
+        self._pending[phase] = tuple(names)
+
+    def receive_ghosts(self, sim, phase):
+        """Fill our ghost rows with the neighbours' rows of ``phase`` (``Engine.set_rows``: on a GPU
+        only they cross PCIe); nothing if that phase was received already."""
+        names = self._pending.pop(phase, None)
+        if names is None:
+            return
+        step = sim.step_index
+        engine = sim.engine
         layout = {k: engine.row_layout(k) for k in names}
         for q in self.neighbours:
             lo, hi = self._ghost_rows[q]
             msg = yield from self.transport.recv(q, (step, phase), self._ghost_rows_check(q, phase, layout, lo, hi))
             engine.set_rows({k: msg[k] for k in names}, np.arange(lo, hi))
+
+    def split_rows(self, sim, phase):
+        """While ``phase`` is on its way: (interior, boundary), the owned rows out of reach of every
+        ghost and the others (``Engine.split_rows``); None once it has arrived, or when the peer does
+        not overlap (decomposition.overlap = false)."""
+        if phase not in self._pending or not self.overlap:
+            return None
+        interior, boundary = sim.engine.split_rows(self.dec, self.rank, self.neighbours)
+        self.overlapped_rows += interior.shape[0]
+        self.after_rows += boundary.shape[0]
+        return interior, boundary
 
     def owns(self, sim, x):
         """Which of the points x (n, 3) lie in this peer's block (the cells it owns)."""

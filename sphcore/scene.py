@@ -325,6 +325,8 @@ class DecompositionSection:
     balance_by: str = spec("time", "what balancing equalises: measured compute time (particles weighted by each "
                                    "peer's seconds per particle) or particle counts (reproducible cuts)",
                            choices=("time", "particles"), control=LIVE)
+    overlap: bool = spec(True, "peers compute the rows out of every ghost's reach while a halo exchange travels, "
+                               "the others after it (the same bits either way); false: wait for each exchange first")
 
 
 @dataclass(frozen=True)

@@ -287,7 +287,8 @@ class Simulation:
         return self.dt
 
     def _run(self, stage, timer=None, **values):
-        """Run a declared stage (stages.py) on the backend, timed as ``timer`` (default: its name)."""
+        """Run a declared stage (stages.py) on the backend, timed as ``timer`` (default: its name; a
+        peer that overlaps a stage with a halo exchange times its two parts as two calls)."""
         with self.timers(timer or stage.name):
             return self.engine.run(stage, **values)
 
@@ -379,20 +380,44 @@ class Simulation:
             self._run(st.OUTLET_PRESSURE, prm=prm)                 # outlets: rho = rho0, p = p_out
         self.max_neighbours = max(self.max_neighbours, self.neighbours_max)
         yield from self.solver.fields(halo, prm)                   # DFSPH: 1/D, g^wall, p = 0; rho_ref
-        yield from self._exchange_fields(halo)                     # ghosts' rho, p   (exchange 2)
+        halo.send_ghosts(self, "fields", ("rho", "p"))             # ghosts' rho, p   (exchange 2): received
+                                                                   # by the accelerations, or DFSPH's solve
 
     def _accelerations(self, halo, prm):
         """a of the owned rows from every force term the scene enables (pressure, viscosity, body
-        forces, walls; surface tension; vorticity confinement), and the delta-SPH density rate."""
-        self._run(st.FORCES, prm=prm)                              # x, v, rho, p     -> a
-        if self.use_diffusion:
-            self._run(st.DIFFUSION, prm=prm)                       # x, m, rho        -> delta-SPH drho
-        for term, value in self.force_terms:                       # surface tension, drag, wall friction: a (+=)
-            self._run(term, prm=prm, coefficient=self.dtype.type(value), dt_prev=self.dtype.type(self.dt_prev))
+        forces, walls; surface tension; vorticity confinement), and the delta-SPH density rate; a
+        peer computes its interior rows while exchange 2 travels."""
+        f = self.dtype.type
+        enabled = {st.FORCES: {}, **({st.DIFFUSION: {}} if self.use_diffusion else {}),
+                   **{term: {"coefficient": f(value), "dt_prev": f(self.dt_prev)} for term, value in self.force_terms}}
+
+        def accelerations(rows, wait):                             # x, v, rho, p -> a; drho; a (+=) of the terms
+            for stage in st.ACCELERATIONS:
+                if stage in enabled:
+                    self._run(stage, prm=prm, rows=rows, wait=wait, **enabled[stage])
+        yield from self._overlapped(halo, "fields", accelerations)  # ghosts' rho, p   (exchange 2)
         if self.use_vorticity:
             self._run(st.VORTICITY, prm=prm)                       # x, v, rho        -> omega
-            yield from halo.exchange_ghosts(self, "omega", ("omega",))  # ghosts' omega (exchange 3)
-            self._run(st.CONFINEMENT, prm=prm)                     # omega            -> a (+=)
+            halo.send_ghosts(self, "omega", ("omega",))            # ghosts' omega    (exchange 3)
+            yield from self._overlapped(halo, "omega", lambda rows, wait: self._run(  # omega -> a (+=)
+                st.CONFINEMENT, prm=prm, rows=rows, wait=wait))
+
+    def _overlapped(self, halo, phase, run):
+        """``run(rows, wait)`` over every owned row once the ghost rows of ``phase`` arrived: on a peer
+        whose rows of ``phase`` are on their way, over the interior rows (no ghost within their reach)
+        while they travel, then over the others; else in one pass (``rows`` None). The bits are those of one
+        pass: a row's sums read only rows its stages do not write (stages.overlap_group), in the same
+        order. ``wait=False``: a device may still run the interior rows while the host waits. Returns
+        what each call of ``run`` returned (a stage's reductions: the caller combines them)."""
+        split = halo.split_rows(self, phase) if phase is not None else None
+        if split is None:
+            if phase is not None:
+                yield from halo.receive_ghosts(self, phase)        # nothing if it has arrived
+            return [run(None, True)]
+        interior, boundary = split
+        first = run(interior, False)
+        yield from halo.receive_ghosts(self, phase)
+        return [first, run(boundary, True)]
 
     def _choose_dt(self, dt_cap, stats):
         vmax2, amax2, dev, bad = stats
@@ -464,10 +489,6 @@ class Simulation:
         if self.open.active:
             self._run(st.OPEN_BOUNDARY)
         yield from self.solver.refresh(halo, prm)  # DFSPH: the pressure the next step would solve for
-
-    def _exchange_fields(self, halo):
-        """Exchange 2: the ghosts' rho, p (written where the backend keeps them)."""
-        yield from halo.exchange_fields(self)
 
     def synchronised_velocity(self):
         """Owned rows' velocity at the full step (leapfrog stores half-step velocities)."""

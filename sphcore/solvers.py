@@ -21,7 +21,6 @@ from __future__ import annotations
 
 from sphcore import stages as st
 from sphcore.boundaries import lattice_jacobi_ratio, lattice_pressure_diagonal
-from sphcore.halo import NULL_HALO
 from sphcore.physics.dfsph import ERROR_QUANTUM, MIN_ITERATIONS, reference_density, relaxation, step_length
 
 
@@ -133,6 +132,7 @@ class DFSPH(WCSPH):
         """The divergence solve on v (if sph.divergence_tolerance > 0)."""
         sim = self.sim
         if sim.scene.sph.divergence_tolerance > 0.0:               # v                -> v (div-free)
+            yield from halo.receive_ghosts(sim, "fields")          # it reads the ghosts' rho (exchange 2)
             yield from self.solve(halo, prm, True, sim.dt_flow or sim.scene.time.dt)
 
     def correct(self, halo, prm, dt):
@@ -166,21 +166,32 @@ class DFSPH(WCSPH):
         on = {"v": field}  # the velocities the solve works on
         f = sim.dtype.type
         dt_, inv_dt = f(dt), f(1.0 / dt)
+        def update(rows, wait):                                    # lambda -> v (the pressure velocity update)
+            sim._run(st.DFSPH_UPDATE, timer, arrays=on, rows=rows, wait=wait, prm=prm, inv_dt=inv_dt)
+
+        def source(rows, wait):                                    # v -> lambda; the density error it removes
+            return sim._run(st.DFSPH_SOURCE, timer, arrays=on, rows=rows, prm=prm, divergence=int(divergence),
+                            dt=dt_, share=f(share), rho_ref=f(self.rho_ref))
+
+        # Each update and each source reads the ghosts' rows the last stage wrote: a peer sends its rows
+        # and computes its interior rows while they travel (Simulation._overlapped)
+        travelling = None  # the phase carrying the ghosts' velocities the next source reads
         if not divergence:  # warm start: apply the previous step's pressure (lam = kappa dt^2, set by the kick)
-            yield from self._exchange_rows(halo, "warm_lam", "lam")
-            sim._run(st.DFSPH_UPDATE, timer, arrays=on, prm=prm, inv_dt=inv_dt)
-            yield from self._exchange_rows(halo, "warm_v", field)  # ghosts' v* after kick and warm start
+            halo.send_ghosts(sim, "warm_lam", ("lam",), kind="solver")
+            yield from sim._overlapped(halo, "warm_lam", update)
+            travelling = "warm_v"                                  # ghosts' v* after kick and warm start
+            halo.send_ghosts(sim, travelling, (field,), kind="solver")
         it = 0
         while True:
-            err = sim._run(st.DFSPH_SOURCE, timer, arrays=on, prm=prm, divergence=int(divergence), dt=dt_,
-                           share=f(share), rho_ref=f(self.rho_ref))
-            err = yield from halo.reduce_sum(sim, f"{name}_err{it}", int(err))
+            parts = yield from sim._overlapped(halo, travelling, source)
+            err = yield from halo.reduce_sum(sim, f"{name}_err{it}", sum(int(e) for e in parts))
             mean = err / ERROR_QUANTUM / max(sim.n_particles, 1)
             if (mean <= tolerance and it >= MIN_ITERATIONS) or it >= sph.max_iterations:
                 break
-            yield from self._exchange_rows(halo, f"{name}_lam{it}", "lam")
-            sim._run(st.DFSPH_UPDATE, timer, arrays=on, prm=prm, inv_dt=inv_dt)
-            yield from self._exchange_rows(halo, f"{name}_v{it}", field)
+            halo.send_ghosts(sim, f"{name}_lam{it}", ("lam",), kind="solver")
+            yield from sim._overlapped(halo, f"{name}_lam{it}", update)
+            travelling = f"{name}_v{it}"
+            halo.send_ghosts(sim, travelling, (field,), kind="solver")
             it += 1
         if not record:
             return
@@ -192,12 +203,6 @@ class DFSPH(WCSPH):
         stats["last"] = it
         stats["last_error"] = mean
         sim.health.solve_ended(halo, name, stats, mean, tolerance)  # warn or stop if unconverged
-
-    def _exchange_rows(self, halo, phase, name):
-        """Ghost rows of a per-row array (lam, v, v*) from their owners; nothing for one process."""
-        if halo is NULL_HALO:
-            return
-        yield from halo.exchange_ghosts(self.sim, phase, (name,), kind="solver")
 
 
 SOLVERS = {"wcsph": WCSPH, "dfsph": DFSPH}  # sph.solver -> its class

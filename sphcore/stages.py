@@ -242,6 +242,27 @@ ENERGY = Stage("energy", energy_row, writes=(), reduce=("sum",)).check()  # the 
 # Force terms: each adds to a after FORCES, in this order, when its scene key is > 0
 FORCE_TERMS = (SURFACE_TENSION, DRAG, WALL_FRICTION)
 
+
+def overlap_group(*group: Stage) -> tuple:
+    """Stages a peer may run on its interior rows while a halo phase is on its way and on the other
+    rows after it arrived (solver.Simulation._overlapped): checked here to give the same bits as one
+    pass over all rows. Each stage alone does (a row reads no other row of an array its stage
+    writes: gather), and so does the group when no stage reads an array that an earlier one writes
+    (it would read a neighbour's value that is not written yet); a stage that adds to an array it
+    writes (a force term: a += ...) touches only its own row."""
+    written = set()
+    for stage in group:
+        early = written.intersection(stage.reads)
+        if early:
+            raise TypeError(f"stage {stage.name} reads {sorted(early)}, written by an earlier stage of its overlap "
+                            "group: split into interior and boundary rows it would read values not yet written")
+        written.update(stage.writes)
+    return group
+
+
+# What runs while exchange 2 (the ghosts' rho, p) travels: the accelerations the scene enables, in order
+ACCELERATIONS = overlap_group(FORCES, DIFFUSION, *FORCE_TERMS)
+
 STAGES = (DENSITY, OUTLET_PRESSURE, DFSPH_FACTOR, FORCES, DIFFUSION, *FORCE_TERMS, VORTICITY, CONFINEMENT, XSPH, SHIFTING,
           OPEN_BOUNDARY, STATISTICS, DFSPH_KICK, DFSPH_SOURCE, DFSPH_UPDATE, DFSPH_FINISH, DENSITY_UPDATE, INTEGRATE, BOUNDARIES,
           BODY_REACTION, ENERGY)

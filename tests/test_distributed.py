@@ -69,6 +69,9 @@ def test_optional_terms_across_peers_equal_one_peer_bitwise():
     result = cluster.final_arrays()
     for key in ("id", "x", "v", "rho"):
         assert np.array_equal(result[key], reference[key]), key
+    # and each peer computed part of its rows while exchanges 2 and 3 travelled, the rest after
+    for h in cluster.halos:
+        assert h.overlapped_rows > 0 and h.after_rows > 0, (h.overlapped_rows, h.after_rows)
 
 
 @pytest.mark.fast
@@ -104,3 +107,35 @@ def test_balanced_cuts_are_the_best_cell_layer_cuts():
         best = min(range(2, 11), key=lambda c: abs(hist[:c].sum() - hist.sum() / 2))
         assert abs(hist[:cut].sum() - hist.sum() / 2) == abs(hist[:best].sum() - hist.sum() / 2)
         assert dec.cuts[1] == (0, 4) and dec.cuts[2] == (0, 4)
+
+
+@pytest.mark.fast
+def test_interior_rows_have_no_ghost_within_reach_and_overlap_off_gives_the_same_bits():
+    # Given the 2D dam break over three peers side by side (the middle one has two neighbours)
+    sc = scene("dam_break_2d", "particles.spacing=0.01")
+    cluster = InProcessCluster(sc, 3, "f64", dims=(3, 1, 1))
+    for _ in range(5):
+        cluster.step()
+    for sim, halo in zip(cluster.peers, cluster.halos):
+        # When a peer splits its owned rows (as sorted now) into interior and boundary rows
+        interior, boundary = sim.engine.split_rows(halo.dec, halo.rank, halo.neighbours)
+        n = sim.state.n_owned
+        # Then together they are every owned row, once
+        assert np.array_equal(np.sort(np.concatenate([interior, boundary])), np.arange(n))
+        # and no interior row has a ghost (a row >= n_owned) among its neighbours, while boundary rows do
+        grid = sim.grid
+        nbr, counts = grid.nbr, grid.counts
+        ghost_neighbours = np.array([(nbr[i, :counts[i]] >= n).sum() for i in range(n)])
+        assert len(interior) and ghost_neighbours[interior].max() == 0
+        assert len(boundary) and ghost_neighbours[boundary].max() > 0
+    # And a run that waits for each exchange before computing gives the bits of one that overlaps
+    overlapped = cluster.final_arrays()
+    waiting = InProcessCluster(scene("dam_break_2d", "particles.spacing=0.01", "decomposition.overlap=false"), 3,
+                               "f64", dims=(3, 1, 1))
+    for _ in range(5):
+        waiting.step()
+    assert all(h.overlapped_rows == 0 for h in waiting.halos)
+    assert all(h.overlapped_rows > 0 for h in cluster.halos)
+    result = waiting.final_arrays()
+    for key in ("id", "x", "v", "rho"):
+        assert np.array_equal(result[key], overlapped[key]), key

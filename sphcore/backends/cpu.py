@@ -36,6 +36,8 @@ class CpuStages(Engine):
     def __init__(self, sim):
         self.dtype = sim.dtype
         self._where = None
+        self._split = None
+        self.all_rows = np.empty(0, dtype=np.int64)
         super().__init__(sim)
 
     def allocate(self, shape, initial):
@@ -66,8 +68,19 @@ class CpuStages(Engine):
             return self.model.lo
         return getattr(self.model.walls, name[len("wall_"):])  # wall_kind, wall_data, wall_tables
 
-    def launch(self, stage, choices, n, arguments):
-        return driver(stage, choices)(n, *arguments)
+    def launch(self, stage, choices, n, rows, arguments, wait):
+        return driver(stage, choices)(n, rows, *arguments)
+
+    def split_rows(self, dec, rank: int, neighbours) -> tuple:
+        key = (dec, rank, tuple(neighbours))
+        if self._split is None or self._split[0] != key:
+            s = self.sim._state
+            cells = self.sim.grid.cells_of(s.x[:s.n_owned])
+            owner = np.empty(s.n_owned, dtype=np.int64)
+            mask = np.empty(s.n_owned, dtype=np.int64)
+            zone_codes(cells, *zone_tables(dec, rank, neighbours), owner, mask)
+            self._split = (key, np.flatnonzero(mask == 0), np.flatnonzero(mask))
+        return self._split[1], self._split[2]
 
     # -- host <-> device: nothing to move ----------------------------------------------------------
     def pull(self, state):
@@ -119,6 +132,7 @@ class CpuStages(Engine):
     def bin(self):
         """x -> (cell, id) order, and the neighbour lists unless the passes walk the cells."""
         self._where = None  # the new sort's inverse permutation is formed when a halo first needs it
+        self._split = None  # and the interior and boundary rows when a halo first asks for them
         if self.model.neighbours == "walk":
             self.sim.grid.sort(self.sim._state)
         else:

@@ -344,6 +344,14 @@ def _selected_rows(scanned, n, rows):
             rows[before] = i
 
 
+@cuda.jit
+def _complement(flags, n, out):
+    """out[i] = 1 - flags[i] (flags of 0 and 1)."""
+    i = cuda.grid(1)
+    if i < n:
+        out[i] = 1 - flags[i]
+
+
 @functools.cache
 def _zone_kernel():
     cell_index = _device(grid_mod.cell_index)
@@ -617,6 +625,8 @@ class CudaStages(Engine):
                     "float64": cuda.device_array(MAX_REDUCED, dtype=np.float64)}
         self.device_stale = True   # the host state was replaced: upload before the next stage
         self.host_stale = False    # the device ran a stage since the last download
+        self.all_rows = cuda.device_array(0, dtype=np.int64)
+        self._split = None
         super().__init__(sim)
 
     def allocate(self, shape, initial):
@@ -699,6 +709,26 @@ class CudaStages(Engine):
         gather_rows(rows, m, [owner, mask], [picked["owner"], picked["mask"]])
         return self.traffic.down(rows), self.traffic.down(picked["owner"]), self.traffic.down(picked["mask"])
 
+    def split_rows(self, dec, rank: int, neighbours) -> tuple:
+        """zone_code of every owned row on the device, compacted there into the interior and the
+        boundary rows (two counts cross PCIe)."""
+        key = (dec, rank, tuple(neighbours))
+        if self._split is None or self._split[0] != key:
+            self.push_if_needed()
+            n = self.d.n_owned
+            g = self.grid
+            cuts, dims, boxes, _, periodic = [self.traffic.up(t) for t in decomposition.zone_tables(dec, rank, neighbours)]
+            owner = cuda.device_array(max(n, 1), dtype=np.int64)
+            mask = cuda.device_array(max(n, 1), dtype=np.int64)
+            boundary = cuda.device_array(max(n, 1), dtype=np.int64)
+            interior = cuda.device_array(max(n, 1), dtype=np.int64)
+            if n:
+                _zone_kernel()[blocks(n), BLOCK](self.d.x, n, g.d_origin, g.d_inv_cell, g.d_ncell, rank, cuts, dims,
+                                                 boxes, periodic, owner, mask, boundary)
+                _complement[blocks(n), BLOCK](boundary, n, interior)
+            self._split = (key, self._selected(interior, n), self._selected(boundary, n))
+        return self._split[1], self._split[2]
+
     def rebuild(self, leaving, owned_in: dict, ghosts_in: dict):
         """The kept owned rows compacted on the device; only migrants and ghosts cross PCIe."""
         self.push_if_needed()
@@ -771,16 +801,19 @@ class CudaStages(Engine):
             return getattr(self.grid, name)
         return self.walls[name]
 
-    def launch(self, stage, choices, n, arguments):
-        """One thread per owned row; the stage's reductions come back as numbers."""
+    def launch(self, stage, choices, n, rows, arguments, wait):
+        """One thread per owned row (or per row of ``rows``); the stage's reductions come back as
+        numbers. Without reductions and with ``wait=False`` it returns at once: the host waits for a
+        halo's messages while the device runs the interior rows."""
         slots = reduction_slots(stage.reduce)
         kinds = [t for t in ("int64", "float64") if any(typ == t for typ, _ in slots)]
         for t in kinds:
             zero(self.out[t])
         if n:
-            KERNELS[stage.name](*choices)[blocks(n), BLOCK](n, *arguments, *(self.out[t] for t in kinds))
+            KERNELS[stage.name](*choices)[blocks(n), BLOCK](n, rows, *arguments, *(self.out[t] for t in kinds))
         if not stage.reduce:
-            cuda.synchronize()
+            if wait:
+                cuda.synchronize()
             return None
         got = {t: self.traffic.down(self.out[t]) for t in kinds}
         values = [int(got[t][j]) if t == "int64" else float(got[t][j]) for t, j in slots]
@@ -788,6 +821,7 @@ class CudaStages(Engine):
 
     def bin(self):
         """x -> (cell, id) order, and the neighbour lists unless the passes walk the cells."""
+        self._split = None  # the interior and boundary rows of the new order, when a halo asks
         self.begin()
         if self.model.neighbours == "walk":
             self.grid.sort(self.d)
@@ -826,17 +860,18 @@ def argument_types(dtype: str) -> dict:
     out = {name: by_kind[kind] for name, (kind, _) in ARGUMENTS.items()}
     out.update({s.name: by_kind["row" if s.components == 1 else "vec"] for s in SCRATCH})
     out["n"] = types.int64
+    out["rows"] = types.Array(types.int64, 1, "C")
     out["out_ints"] = types.Array(types.int64, 1, "C")
     out["out_reals"] = types.Array(types.float64, 1, "C")
     return out
 
 
 def stage_signature(stage, dtype: str) -> tuple:
-    """The argument types of ``stage``'s generated kernel (n, its arguments, its reduction outputs)."""
+    """The argument types of ``stage``'s generated kernel (n, rows, its arguments, its reduction outputs)."""
     t = argument_types(dtype)
     slots = reduction_slots(stage.reduce)
     outs = tuple(name for t, name in (("int64", "out_ints"), ("float64", "out_reals")) if any(typ == t for typ, _ in slots))
-    return tuple(t[a] for a in ("n", *stage.arguments, *outs))
+    return tuple(t[a] for a in ("n", "rows", *stage.arguments, *outs))
 
 
 _F64 = re.compile(r"^\s*(?:@!?%p\d+\s+)?[a-z]+(?:\.[a-z0-9]+)*\.f64\b", re.M)  # an instruction typed .f64
@@ -871,6 +906,7 @@ def _binning_signatures(t) -> dict:
         "fill_int64": (_fill, (i8v, n, types.int64)),
         "set_at": (_set_at, (i8v, i8v, n, types.int64)),
         "selected_rows": (_selected_rows, (i8v, n, i8v)),
+        "complement": (_complement, (i8v, n, i8v)),
         "zone": (_zone_kernel(), (v2, n, v1, v1, i8v, n, i8m, i8v, i8m, i8v, i8v, i8v, i8v)),
         "scatter_rows": (scatter_kernel((1, 2)), (i8v, n, v1, v1, v2, v2)),
         "gather": (gather_kernel(tuple(1 + len(state_fields.ROW_SHAPE[f]) for f in SORTED)),

@@ -5,7 +5,8 @@
 from ``arrays`` renames (``arrays={"v": "v_star"}``: the density solve runs on v*), then from the
 backend's arrays by name (``array``): the particle state, its carried arrays, the scratch, the grid,
 the walls. Compile-time choices not given come from the simulation's ``choices``. A backend provides
-``array(name)``, ``allocate(shape, initial)`` and ``launch(stage, choices, n, arguments)``.
+``array(name)``, ``allocate(shape, initial)``, ``all_rows`` (an empty int64 array: "every owned row")
+and ``launch(stage, choices, n, rows, arguments, wait)``.
 """
 from __future__ import annotations
 
@@ -47,8 +48,11 @@ class Engine:
         self.scratch = Scratch({s.needed: bool(getattr(model, s.needed)) for s in stage_specs.SCRATCH if s.needed},
                                self.allocate)
 
-    def run(self, stage, arrays=None, **values):
-        """Run ``stage`` over the owned rows; returns its reduced values (a number, a tuple, or None)."""
+    def run(self, stage, arrays=None, rows=None, wait=True, **values):
+        """Run ``stage`` over the owned rows, or over ``rows`` (a backend int64 array of owned rows, from
+        ``split_rows``); returns its reduced values (a number, a tuple, or None). ``wait=False``: a
+        device may return before the stage has run (a stage without reductions), so that the host can
+        wait for messages meanwhile."""
         choices = self.model.choices
         picked = tuple(int(values.pop(c)) if c in values else choices[c] for c in stage.choices)
         self.begin()
@@ -58,7 +62,9 @@ class Engine:
                 arguments.append(values[name])
             else:
                 arguments.append(self.array(arrays.get(name, name) if arrays else name))
-        return self.launch(stage, picked, self.n_owned(), arguments)
+        if rows is None:
+            return self.launch(stage, picked, self.n_owned(), self.all_rows, arguments, wait)
+        return self.launch(stage, picked, rows.shape[0], rows, arguments, wait)
 
     def begin(self):
         """Before a stage: the backend's arrays are current and the scratch fits the state."""
@@ -67,6 +73,12 @@ class Engine:
     # -- rows for the halo (sphcore/halo.py): only the rows a neighbour needs leave the backend --------
     def carried_names(self) -> tuple:
         """The keys of the carried arrays (state.carried_layout): id, x, v, m, "extra_<name>"..."""
+        raise NotImplementedError
+
+    def split_rows(self, dec, rank: int, neighbours) -> tuple:
+        """(interior, boundary): backend int64 arrays of this step's owned rows (as sorted now) whose
+        cells lie in no neighbour's incoming zone (no ghost is within their reach: decomposition.py),
+        and of the others; computed once per grid sort."""
         raise NotImplementedError
 
     def rows_of(self, names, rows, renumber: bool = True) -> dict:

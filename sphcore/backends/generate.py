@@ -50,9 +50,11 @@ BUFFER = {"int64": "ints", "float64": "reals"}  # the per-row tables (CPU) and r
 
 
 def cpu_source(stage, combo: dict) -> str:
-    """The module of one ``@njit(parallel=True)`` driver, ``driver(n, *arguments)``, for ``stage`` with
-    the choices of ``combo`` ({choice: value}): it runs the row function for rows 0..n-1 and returns
-    the reduced row values, if any.
+    """The module of one ``@njit(parallel=True)`` driver, ``driver(n, rows, *arguments)``, for ``stage``
+    with the choices of ``combo`` ({choice: value}): it runs the row function for rows 0..n-1, or for
+    the n rows ``rows`` (int64) when that is not empty (the interior or the boundary rows of a peer
+    whose halo is on its way: solver.Simulation._overlapped), and returns the reduced row values, if
+    any.
 
     The choices are the module's constants, not the driver's arguments: numba prunes the branches of
     a constant before it types them, so a driver types, lowers and caches only the code its scene
@@ -66,8 +68,9 @@ def cpu_source(stage, combo: dict) -> str:
     lines += [f"{c} = {int(combo[c])}" for c in s.choices]
     licences = "{" + ", ".join(repr(f) for f in FASTMATH) + "}"  # spelled in a fixed order: one source
     fastmath = f", fastmath={licences}" if s.neighbour_pass else ""
-    params = ", ".join(("n", *s.arguments))
+    params = ", ".join(("n", "rows", *s.arguments))
     lines += ["", f"@njit(cache=True, parallel=True{fastmath})", f"def {s.name}({params}):"]
+    row = ["        i = rows[k] if rows.shape[0] else np.int64(k)"]  # a subset of the rows, or rows 0..n-1
     if s.reduce:
         # Each row's values go to per-row tables (int64 and float64), combined by a serial loop after
         # the prange: numba's prange reductions fail ("unexpected cycle in lookup()") on row
@@ -78,16 +81,16 @@ def cpu_source(stage, combo: dict) -> str:
             if width:
                 lines += [f"    {BUFFER[t]} = np.zeros((n, {width}), np.{t})"]
         values = [f"v{k}" for k in range(len(s.reduce))]
-        lines += ["    for i in prange(n):", f"        {', '.join(values)} = {_row_call(s)}"]
-        lines += [f"        {BUFFER[t]}[i, {j}] = v{k}" for k, (t, j) in enumerate(slots)]
+        lines += ["    for k in prange(n):", *row, f"        {', '.join(values)} = {_row_call(s)}"]
+        lines += [f"        {BUFFER[t]}[k, {j}] = v{k}" for k, (t, j) in enumerate(slots)]
         acc = [f"r{k}" for k in range(len(s.reduce))]
         lines += [f"    {a} = {_zero(kind)}" for a, kind in zip(acc, s.reduce)]
-        lines += ["    for i in range(n):"]
-        lines += [f"        {_combine(kind, a, f'{BUFFER[t]}[i, {j}]')}"
+        lines += ["    for k in range(n):"]
+        lines += [f"        {_combine(kind, a, f'{BUFFER[t]}[k, {j}]')}"
                   for a, kind, (t, j) in zip(acc, s.reduce, slots)]
         lines += [f"    return {', '.join(acc)}"]
     else:
-        lines += ["    for i in prange(n):", f"        {_row_call(s)}"]
+        lines += ["    for k in prange(n):", *row, f"        {_row_call(s)}"]
     if s.choices:  # compiled by the helper process, like the drivers before them (literal.py)
         lines += [f"{s.name} = literal_dispatch(0)({s.name})"]
     return "\n".join(lines) + "\n"
@@ -95,7 +98,7 @@ def cpu_source(stage, combo: dict) -> str:
 
 def cuda_source(stages) -> str:
     """One kernel factory per stage: ``make_<stage>(*choices)`` returns the ``@cuda.jit`` kernel
-    ``kernel(n, *arguments[, out_ints][, out_reals])`` with the choices as closure constants (NVVM prunes
+    ``kernel(n, rows, *arguments[, out_ints][, out_reals])`` (rows as in ``cpu_source``) with the choices as closure constants (NVVM prunes
     the branches a scene does not use). Reductions combine a block in shared memory, then the blocks
     with one atomic per block and value: integer kinds into the int64 array out_ints, "max" into the
     float64 array out_reals (maxima and integer sums do not depend on the order)."""
@@ -103,19 +106,20 @@ def cuda_source(stages) -> str:
     for s in stages:
         slots = reduction_slots(s.reduce)
         outs = [f"out_{BUFFER[t]}" for t in ("int64", "float64") if any(typ == t for typ, _ in slots)]
-        params = ", ".join(("n", *s.arguments, *outs))
+        params = ", ".join(("n", "rows", *s.arguments, *outs))
         call = _row_call(s).replace(s.row.py_func.__name__ + "(", "row(", 1)
         lines += ["", f"def make_{s.name}({', '.join(s.choices)}):",
                   f"    row = _device({s.row.py_func.__name__})", "", "    @cuda.jit", f"    def {s.name}({params}):"]
+        pick = ["            if rows.shape[0] > 0:", "                i = rows[i]"]  # a subset of the rows
         if not s.reduce:
-            lines += ["        i = cuda.grid(1)", "        if i < n:", f"            {call}", f"    return {s.name}"]
+            lines += ["        i = cuda.grid(1)", "        if i < n:", *pick, f"            {call}", f"    return {s.name}"]
             continue
         for k, (t, _) in enumerate(slots):
             lines += [f"        s{k} = cuda.shared.array(BLOCK, numba.{t})"]
         lines += ["        t = cuda.threadIdx.x", "        i = cuda.grid(1)"]
         lines += [f"        s{k}[t] = {_zero(kind)}" for k, kind in enumerate(s.reduce)]
         values = [f"v{k}" for k in range(len(s.reduce))]
-        lines += ["        if i < n:", f"            {', '.join(values)} = {call}"]
+        lines += ["        if i < n:", *pick, f"            {', '.join(values)} = {call}"]
         lines += [f"            s{k}[t] = v{k}" for k in range(len(s.reduce))]
         lines += ["        cuda.syncthreads()", "        h = BLOCK // 2", "        while h > 0:", "            if t < h:"]
         lines += [f"                {_combine(kind, f's{k}[t]', f's{k}[t + h]')}" for k, kind in enumerate(s.reduce)]
