@@ -438,7 +438,8 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--json", type=Path, default=None, help="write results as JSON here")
     bench.add_argument("--network", action="store_true",
                        help="instead: the 2-peer run over loopback with TLS and with --insecure, and over two "
-                            "network-namespace hosts at 0, 1 and 5 ms (root), interleaved --repeat times")
+                            "network-namespace hosts at 0, 1 and 5 ms (root), each with and without "
+                            "decomposition.overlap (TLS), interleaved --repeat times")
     bench.add_argument("--repeat", type=_positive_int, default=3, help="--network: rounds of every case (default: 3)")
     return parser
 

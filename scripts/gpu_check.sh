@@ -7,14 +7,16 @@
 #      with lists, STEPS steps (default 100) per case;
 #   4. what a kernel launch costs the host (scripts/investigations/launch_overhead.py);
 #   5. the largest run that fits (BIG particles, default 300 M, walking; BIG=0 skips it);
-#   6. two peer processes sharing the GPU against one, at PEERS_SIZE particles (default 4 M; 0 skips);
+#   6. two peer processes sharing the GPU against one, at PEERS_SIZE particles (default 4 M; 0 skips),
+#      and the two peers again with decomposition.overlap = false (what overlapping the halo gains);
 #   7. the same scene on all CPU cores for the ratio (CPU_BENCH=0 skips it).
 #
 #   bash scripts/gpu_check.sh OUTDIR [SIZES...]     (default sizes: 1000000 2000000 4000000)
 #
-# About 9 minutes on one H200 with 16 cores (2026-12-04). PY selects the interpreter (default:
+# About 9 minutes on one H200 with 16 cores (2026-12-04; the overlap-off run of 6 was added later and
+# is bounded to 2 minutes: set PEERS_SIZE=0 if time is short). PY selects the interpreter (default:
 # .venv/bin/python if present, else python3). Writes OUTDIR/log.txt, parity.json, gpu.json, gpu_big.json,
-# gpu_peers.json and cpu.json; every step runs even when one before failed, and the exit status is 1
+# gpu_peers.json, gpu_peers_no_overlap.json and cpu.json; every step runs even when one before failed, and the exit status is 1
 # if any failed.
 set -u
 OUTDIR=${1:-runs/gpu}
@@ -99,6 +101,11 @@ if [ "${PEERS_SIZE:-4000000}" != 0 ]; then
     say "two peer processes sharing the GPU against one: ${PEERS_SIZE:-4000000} particles, f32"
     SPH_CACHE_DIR="$TMP/cache_bench" timeout 200 $PY -m launch.cli bench --backend cuda --sizes ${PEERS_SIZE:-4000000} \
         --precisions f32 --peers 1 2 --steps 100 --json "$OUTDIR/gpu_peers.json" >>"$LOG" 2>&1 || status=1
+    say "the same two peers waiting for every halo exchange first (decomposition.overlap = false)"
+    { cat configs/dam_break.toml; printf '\n[decomposition]\noverlap = false\n'; } > "$TMP/no_overlap.toml"
+    SPH_CACHE_DIR="$TMP/cache_bench" timeout 120 $PY -m launch.cli bench --backend cuda --sizes ${PEERS_SIZE:-4000000} \
+        --precisions f32 --peers 2 --steps 50 --config "$TMP/no_overlap.toml" \
+        --json "$OUTDIR/gpu_peers_no_overlap.json" >>"$LOG" 2>&1 || status=1
 fi
 
 if [ "${CPU_BENCH:-1}" != 0 ]; then
