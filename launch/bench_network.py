@@ -13,7 +13,10 @@ Cases, every one the same 3D dam break (about N particles, fixed dt, ``--steps``
 
 The cases run in turn, ``--repeat`` rounds (ABCDE ABCDE ...), so a slow minute of the machine
 falls on every case alike; the figure is the median of each case's particle-steps/s (the runs' own
-summary: the stepping loop only, without compilation), and the ratios are to loopback TLS.
+summary: the stepping loop only, without compilation), and the ratios are to loopback TLS. Each
+case also reports how long a peer waited per step in each phase (summary.json's
+``wait_s_per_phase``): less noisy than the speed on a shared machine, and it shows which exchange a
+latency lands on.
 """
 from __future__ import annotations
 
@@ -30,12 +33,18 @@ DELAYS_MS = (0.0, 1.0, 5.0)
 PORT = 7447
 
 
-def _run(cmd: list[str], out: Path) -> float | None:
+def _run(cmd: list[str], out: Path) -> tuple[float, dict] | None:
+    """(particle-steps/s, {phase: ms per step that the peers waited, the mean over peers})."""
     done = subprocess.run(cmd + ["--out", str(out), "--quiet"], capture_output=True, text=True)
     if done.returncode != 0:
         print(f"  failed ({done.returncode}): {done.stderr[-1500:]}", file=sys.stderr)
         return None
-    return json.loads((out / "summary.json").read_text())["particle_steps_per_s"]
+    summary = json.loads((out / "summary.json").read_text())
+    peers = summary["per_peer"]
+    steps = max(1, summary["steps"])
+    phases = sorted({ph for p in peers for ph in p["wait_s_per_phase"]})
+    waits = {ph: 1e3 * sum(p["wait_s_per_phase"].get(ph, 0.0) for p in peers) / len(peers) / steps for ph in phases}
+    return summary["particle_steps_per_s"], waits
 
 
 def network_cases(scene_path: Path, fixed: list[str], steps: int, precision: str, repeat: int) -> list[dict]:
@@ -53,6 +62,7 @@ def network_cases(scene_path: Path, fixed: list[str], steps: int, precision: str
     else:
         print(f"  (namespace hosts skipped: {why_not})", file=sys.stderr)
     figures = {name: [] for name, _, _ in cases}
+    waits = {name: [] for name, _, _ in cases}
     for round_ in range(repeat):
         for name, delay, extra in cases:
             with tempfile.TemporaryDirectory() as tmp:
@@ -70,9 +80,11 @@ def network_cases(scene_path: Path, fixed: list[str], steps: int, precision: str
                             cmd += ["--listen-host", net.listen_host]
                         value = _run(cmd, tmp / "out")
             if value is not None:
-                figures[name].append(value)
-            print(f"  round {round_ + 1}/{repeat}  {name:<34} "
-                  f"{value:.3e} particle-steps/s" if value else f"  {name}: failed", flush=True)
+                figures[name].append(value[0])
+                waits[name].append(value[1])
+            print(f"  round {round_ + 1}/{repeat}  {name:<34} {value[0]:.3e} particle-steps/s, waiting "
+                  + ", ".join(f"{ph} {ms:.1f}" for ph, ms in value[1].items() if ms >= 0.05) + " ms/step"
+                  if value else f"  {name}: failed", flush=True)
     results = []
     reference = statistics.median(figures["loopback, TLS"]) if figures["loopback, TLS"] else None
     print("\n2-peer dam break, median particle-steps/s (ratio to loopback TLS):")
@@ -81,8 +93,13 @@ def network_cases(scene_path: Path, fixed: list[str], steps: int, precision: str
             continue
         median = statistics.median(figures[name])
         ratio = median / reference if reference else None
+        phases = sorted({ph for w in waits[name] for ph in w})
+        wait_ms = {ph: statistics.median(w.get(ph, 0.0) for w in waits[name]) for ph in phases}
         results.append({"case": name, "delay_ms": delay, "insecure": "--insecure" in extra,
                         "overlap": "decomposition.overlap=false" not in extra, "runs": figures[name],
-                        "particle_steps_per_s": median, "ratio_to_loopback_tls": ratio})
+                        "particle_steps_per_s": median, "ratio_to_loopback_tls": ratio,
+                        "wait_ms_per_step": wait_ms,
+                        "wait_note": "per phase: ms per step a peer spent blocked in recv (mean over peers, "
+                                     "median over runs)"})
         print(f"  {name:<34} {median:.3e}  ({ratio:.3f}x)" if ratio else f"  {name:<34} {median:.3e}")
     return results

@@ -30,6 +30,17 @@ def test_a_declaration_that_disagrees_with_its_row_fails_at_once():
         stages.Stage("bad", njit(row), writes=("x",)).check()
 
 
+def test_an_overlap_group_whose_stage_reads_an_earlier_ones_writes_fails_at_once():
+    # the accelerations may split into interior and boundary rows: no stage reads what an earlier writes
+    assert stages.ACCELERATIONS[0] is stages.FORCES
+    # but vorticity writes omega, which confinement reads from the neighbours: not one group
+    with pytest.raises(TypeError, match="confinement reads \\['omega'\\]"):
+        stages.overlap_group(stages.VORTICITY, stages.CONFINEMENT)
+    # and any stage reading a after the forces wrote it is refused (declarations do not say whose row it reads)
+    with pytest.raises(TypeError, match="dfsph_kick reads \\['a'\\]"):
+        stages.overlap_group(stages.FORCES, stages.DFSPH_KICK)
+
+
 def test_every_stage_reads_and_writes_only_declared_names():
     known = set(stages.ARGUMENTS) | stages.SCRATCH_NAMES
     for s in stages.STAGES:
