@@ -688,20 +688,23 @@ class CudaStages(Engine):
         gather_rows(now, m, [self.array(name) for name in names], [out[name] for name in names])
         return {name: self.traffic.down(a) for name, a in out.items()}
 
-    def zone_rows(self, dec, rank: int, neighbours) -> tuple:
-        """zone_code of every owned row on the device; only the zone's rows, owners and masks come back."""
+    def _zone_codes(self, dec, rank: int, neighbours) -> tuple:
+        """(owner, mask, flags): decomposition.zone_code of every owned row, on the device; flags[i] = 1
+        where row i leaves this peer or is a neighbour's ghost."""
         self.push_if_needed()
         n = self.d.n_owned
         g = self.grid
-        tables = [self.traffic.up(t) for t in decomposition.zone_tables(dec, rank, neighbours)]
-        cuts, dims, boxes, _, periodic = tables
-        owner = cuda.device_array(max(n, 1), dtype=np.int64)
-        mask = cuda.device_array(max(n, 1), dtype=np.int64)
-        flags = cuda.device_array(max(n, 1), dtype=np.int64)
+        cuts, dims, boxes, _, periodic = [self.traffic.up(t) for t in decomposition.zone_tables(dec, rank, neighbours)]
+        owner, mask, flags = (cuda.device_array(max(n, 1), dtype=np.int64) for _ in range(3))
         if n:
             _zone_kernel()[blocks(n), BLOCK](self.d.x, n, g.d_origin, g.d_inv_cell, g.d_ncell, rank, cuts, dims,
                                              boxes, periodic, owner, mask, flags)
-        rows = self._selected(flags, n)
+        return owner, mask, flags
+
+    def zone_rows(self, dec, rank: int, neighbours) -> tuple:
+        """zone_code of every owned row on the device; only the zone's rows, owners and masks come back."""
+        owner, mask, flags = self._zone_codes(dec, rank, neighbours)
+        rows = self._selected(flags, self.d.n_owned)
         m = rows.shape[0]
         if not m:
             return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
@@ -714,17 +717,10 @@ class CudaStages(Engine):
         boundary rows (two counts cross PCIe)."""
         key = (dec, rank, tuple(neighbours))
         if self._split is None or self._split[0] != key:
-            self.push_if_needed()
+            _, _, boundary = self._zone_codes(dec, rank, neighbours)  # after exchange 1 every owned row stays
             n = self.d.n_owned
-            g = self.grid
-            cuts, dims, boxes, _, periodic = [self.traffic.up(t) for t in decomposition.zone_tables(dec, rank, neighbours)]
-            owner = cuda.device_array(max(n, 1), dtype=np.int64)
-            mask = cuda.device_array(max(n, 1), dtype=np.int64)
-            boundary = cuda.device_array(max(n, 1), dtype=np.int64)
             interior = cuda.device_array(max(n, 1), dtype=np.int64)
             if n:
-                _zone_kernel()[blocks(n), BLOCK](self.d.x, n, g.d_origin, g.d_inv_cell, g.d_ncell, rank, cuts, dims,
-                                                 boxes, periodic, owner, mask, boundary)
                 _complement[blocks(n), BLOCK](boundary, n, interior)
             self._split = (key, self._selected(interior, n), self._selected(boundary, n))
         return self._split[1], self._split[2]
