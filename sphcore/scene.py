@@ -326,7 +326,8 @@ class DecompositionSection:
                                    "peer's seconds per particle) or particle counts (reproducible cuts)",
                            choices=("time", "particles"), control=LIVE)
     overlap: bool = spec(True, "peers compute the rows out of every ghost's reach while a halo exchange travels, "
-                               "the others after it (the same bits either way); false: wait for each exchange first")
+                               "the others after it (the same bits either way); false: wait for each exchange first",
+                         control=AT_START)
 
 
 @dataclass(frozen=True)
