@@ -6,7 +6,7 @@ that yields while it waits for messages (a single process never waits):
     exchange_positions   1a migrants change owner; 1b ghosts' id, x, v, m arrive (exchange 1)
     send_ghosts          the ghosts' rows of per-particle values go out, in the order of exchange 1:
                          rho, p (exchange 2), vorticity omega, a DFSPH solve's lambda and v
-    receive_ghosts       ... and the neighbours' arrive into our ghost rows (exchange_ghosts: both)
+    receive_ghosts       ... and the neighbours' arrive into our ghost rows
     split_rows           while a phase is on its way: (interior, boundary) owned rows, the interior
                          ones out of reach of every ghost (computed meanwhile: solver._overlapped)
     reduce_max           the global max of the step statistics (adaptive dt, health check)
@@ -93,10 +93,6 @@ class NullHalo:
         pass
 
     def receive_ghosts(self, sim, phase):
-        return
-        yield
-
-    def exchange_ghosts(self, sim, phase, names, kind=None):
         return
         yield
 
@@ -326,11 +322,6 @@ class PeerHalo:
             self._ghost_rows[q] = (first, first + count)
             first += count
         engine.rebuild(gone, migrants, {k: np.concatenate([g[k] for g in ghosts]) for k in names})
-
-    def exchange_ghosts(self, sim, phase, names, kind=None):
-        """send_ghosts, then receive_ghosts."""
-        self.send_ghosts(sim, phase, names, kind)
-        yield from self.receive_ghosts(sim, phase)
 
     def send_ghosts(self, sim, phase, names, kind=None):
         """Send the rows of the per-row arrays ``names`` that are the neighbours' ghosts, in the order of
