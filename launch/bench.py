@@ -142,6 +142,107 @@ def bench_case(scene_path: Path, dx: float, precision: str, threads: int, steps:
     }
 
 
+# sph bench --until: each code steps the dam break from rest to T simulated seconds with its own
+# adaptive step, timed from the end of its first step. DFSPH runs at SPlisHSPlasH's defaults (its
+# TimeStepDFSPH: maxError 0.05 % of rho0 for the density solve, maxErrorV 0.1 % for the divergence
+# solve, largest step cflMaxTimeStepSize 0.005 s), so that both codes are asked for the same accuracy.
+DFSPH_DENSITY_TOLERANCE = 5.0e-4
+DFSPH_DIVERGENCE_TOLERANCE = 1.0e-3
+UNTIL_MAX_DT = 5.0e-3
+
+
+def _until_overrides(scene_path: Path, dx: float, solver: str) -> list[str]:
+    """The --until case's overrides: the spacing, no particle limit below the size asked for, the
+    scene's adaptive step and the solver (DFSPH at SPlisHSPlasH's tolerances and largest step)."""
+    over = [kv for kv in _fixed(scene_path, dx) if kv.startswith(("particles.", ))]
+    over += ["time.mode='adaptive'", f"sph.solver={solver!r}"]
+    if solver == "dfsph":
+        over += [f"sph.density_tolerance={DFSPH_DENSITY_TOLERANCE!r}",
+                 f"sph.divergence_tolerance={DFSPH_DIVERGENCE_TOLERANCE!r}", f"time.dt={UNTIL_MAX_DT!r}"]
+    return over
+
+
+def bench_until_case(scene_path: Path, dx: float, precision: str, threads: int, solver: str, until: float) -> dict:
+    """Simulated seconds per wall second: ``solver`` steps the scene from rest to ``until`` seconds with
+    its adaptive step; the clock starts after the first step (compile or cache load)."""
+    numba.set_num_threads(threads)
+    scene = load_scene(scene_path, _until_overrides(scene_path, dx, solver))
+    sim = Simulation(scene, precision)
+    t0 = time.perf_counter()
+    sim.step()
+    first = time.perf_counter() - t0
+    t_start, step_start = sim.t, sim.step_index
+    sim.timers.reset()
+    t0 = time.perf_counter()
+    while sim.t < until:
+        sim.step(dt_cap=until - sim.t)
+    wall = time.perf_counter() - t0
+    steps = sim.step_index - step_start
+    simulated = sim.t - t_start
+    solves = {name: {"iterations_per_step": st["iterations"] / max(st["steps"], 1), "max": st["max"],
+                     "unconverged_steps": st["unconverged"]} for name, st in sim.solver_stats.items()}
+    return {
+        "code": "sphfluid", "method": solver, "backend": "cpu", "precision": precision, "threads": threads,
+        "particles": sim.n_particles, "dx": dx, "until_s": until, "simulated_s": simulated, "steps": steps,
+        "mean_dt": simulated / max(steps, 1), "wall_s": wall, "sim_s_per_wall_s": simulated / wall,
+        "particle_steps_per_s": sim.n_particles * steps / wall, "first_step_s": first,
+        "neighbours": sim.neighbours_sum / max(sim.state.n_owned, 1), "solves": solves,
+        "limits": {k: v for k, v in sim.limit_counts.items() if v}, "leaks": sim.leaks,
+    }
+
+
+def _until_row(r: dict) -> str:
+    solves = "".join(f" {name}={s['iterations_per_step']:.1f}it/step" for name, s in r.get("solves", {}).items())
+    return (f"{r['code']:>13} {r['method']:>6} {r.get('precision', 'f64'):>4} threads={r['threads']} "
+            f"N={r['particles']:>8} to t={r['until_s']:g} s: {r['steps']:>6} steps, mean dt {r['mean_dt']:.2e} s, "
+            f"{r['wall_s']:7.1f} s wall, {r['sim_s_per_wall_s']:.4f} simulated s per wall s{solves}")
+
+
+def _until_cases(scene_path: Path, dx: float, args) -> list[dict]:
+    """``sph bench --until T``: ours with every --solvers entry, precision and thread count; with
+    --external, SPlisHSPlasH's DFSPH with its CFL step (its WCSPH takes a flow-speed step with no
+    sound-speed limit, and PySPH's script runs fixed steps: neither is compared this way)."""
+    out = []
+    for solver in args.solvers:
+        for precision in args.precisions:
+            for threads in args.threads:
+                r = bench_until_case(scene_path, dx, precision, threads, solver, args.until)
+                out.append(r)
+                print(_until_row(r), flush=True)
+    if args.external:
+        from launch.external.runner import available, run_external
+        if not available("splishsplash"):
+            print("  splishsplash: not installed (scripts/setup_bench.sh installs it); skipped", file=sys.stderr)
+            return out
+        for threads in args.threads:
+            try:
+                r = run_external("splishsplash", "dfsph", dx=dx, steps=1, threads=threads,
+                                 timeout_s=3600, extra_args=["--until", repr(args.until),
+                                                             "--max-dt", repr(UNTIL_MAX_DT)])
+            except RuntimeError as e:
+                print(f"  splishsplash dfsph: failed: {e}", file=sys.stderr)
+                continue
+            r.setdefault("precision", "f64")
+            r["dx"] = dx
+            out.append(r)
+            print(_until_row(r), flush=True)
+    return out
+
+
+def _print_until_ratios(results: list[dict]):
+    ours = [r for r in results if r["code"] == "sphfluid" and "sim_s_per_wall_s" in r]
+    theirs = [r for r in results if r["code"] != "sphfluid" and "sim_s_per_wall_s" in r]
+    if not theirs:
+        return
+    print("\nsimulated seconds per wall second, ours / reference (same dx, end time and threads):")
+    for t in theirs:
+        for o in ours:
+            if o["threads"] == t["threads"] and abs(o["dx"] - t["dx"]) < 1e-12:
+                print(f"  ours {o['method']} {o['precision']} vs {t['code']} {t['method']} threads={t['threads']} "
+                      f"N={o['particles']}/{t['particles']}: {o['sim_s_per_wall_s'] / t['sim_s_per_wall_s']:.2f}x "
+                      f"({o['steps']} / {t['steps']} steps)")
+
+
 def run_bench(args) -> int:
     """``sph bench`` (its options checked by launch/cli.py ``check_bench``)."""
     scene_path = args.config or DEFAULT_SCENE
@@ -157,6 +258,9 @@ def run_bench(args) -> int:
         results = network_cases(scene_path, _fixed(scene_path, dx), args.steps, args.precisions[0], args.repeat)
     for target in ([] if args.network else args.sizes):
         dx = spacing_for(scene_path, target)
+        if args.until is not None:
+            results += _until_cases(scene_path, dx, args)
+            continue
         for precision in args.precisions:
             for threads in (args.threads if args.backend == "cpu" else args.threads[:1]):
                 for neighbours in args.neighbours:
@@ -168,7 +272,9 @@ def run_bench(args) -> int:
         if args.peers != [1]:
             results += _peer_cases(scene_path, dx, args)
     budget = []
-    if not args.network:
+    if args.until is not None:
+        _print_until_ratios(results)
+    elif not args.network:
         _print_walk_ratios(results)
         _print_ratios(results)
         _print_peer_ratios(results)

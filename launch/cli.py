@@ -441,6 +441,13 @@ def build_parser() -> argparse.ArgumentParser:
                             "network-namespace hosts at 0, 1 and 5 ms (root), each with and without "
                             "decomposition.overlap (TLS), interleaved --repeat times")
     bench.add_argument("--repeat", type=_positive_int, default=3, help="--network: rounds of every case (default: 3)")
+    bench.add_argument("--until", type=_positive_float, default=None, metavar="T",
+                       help="instead of --steps fixed steps: step the dam break from rest to T simulated seconds "
+                            "with each solver's adaptive step and report simulated seconds per wall second; "
+                            "with --external, SPlisHSPlasH's DFSPH too (its CFL step, the same tolerances). "
+                            "E.g. --until 0.5 --sizes 50000 --solvers wcsph dfsph --precisions f32 --threads 2")
+    bench.add_argument("--solvers", nargs="+", choices=("wcsph", "dfsph"), default=["dfsph"],
+                       help="--until: our solvers to run (default: dfsph)")
     return parser
 
 
@@ -647,6 +654,13 @@ def _check_bench(args):
     for t in args.threads:
         if t < 1 or t > threads_available:
             raise UsageError(f"--threads {t}: this machine allows 1..{threads_available}")
+    if args.until is not None:
+        if args.network or args.backend != "cpu" or args.peers != [1] or args.neighbours != ["lists"]:
+            raise UsageError("--until times one CPU process with neighbour lists: it does not combine with "
+                             "--network, --backend cuda, --peers or --neighbours walk")
+        if args.until > 10.0:
+            raise UsageError(f"--until {args.until:g}: at most 10 simulated seconds (the dam break has settled "
+                             "long before)")
     if args.backend == "cuda":
         _require_cuda()
         if args.external:

@@ -23,3 +23,31 @@ def test_the_figure_comes_from_the_case_nearest_a_16_67_ms_step_per_backend():
     assert cpu["particles"] == int(40_000 * 50.0 * FRAME_S) == 33_333
     assert gpu["backend"] == "cuda" and gpu["device"] == "GPU 0" and not gpu["measured"]
     assert gpu["particles"] == int(1_000_000 * 100.0 * FRAME_S)
+
+
+@pytest.mark.fast
+def test_bench_until_steps_each_solver_from_rest_to_the_end_time_and_compares_like_with_like(capsys):
+    """sph bench --until: the clock runs from the end of the first step to exactly T, DFSPH runs at the
+    reference code's tolerances and reports its iterations, and the ratio pairs the same dx and threads."""
+    from launch.bench import (DEFAULT_SCENE, DFSPH_DENSITY_TOLERANCE, _print_until_ratios, _until_overrides,
+                              bench_until_case, spacing_for)
+    dx = spacing_for(DEFAULT_SCENE, 600)
+    assert f"sph.density_tolerance={DFSPH_DENSITY_TOLERANCE!r}" in _until_overrides(DEFAULT_SCENE, dx, "dfsph")
+    assert not any("tolerance" in kv for kv in _until_overrides(DEFAULT_SCENE, dx, "wcsph"))
+    until = 0.02
+    runs = {solver: bench_until_case(DEFAULT_SCENE, dx, "f64", 1, solver, until) for solver in ("wcsph", "dfsph")}
+    for solver, r in runs.items():
+        assert r["method"] == solver and r["steps"] > 0 and r["wall_s"] > 0.0
+        first_t = until - r["simulated_s"]
+        assert 0.0 < first_t < until and r["mean_dt"] == pytest.approx(r["simulated_s"] / r["steps"])
+        assert r["sim_s_per_wall_s"] == pytest.approx(r["simulated_s"] / r["wall_s"])
+    assert runs["wcsph"]["solves"] == {}
+    dens = runs["dfsph"]["solves"]["density"]
+    assert dens["iterations_per_step"] >= 1.0 and dens["unconverged_steps"] == 0
+    # DFSPH steps on the flow speed, WCSPH on the sound speed: far fewer steps to the same time
+    assert runs["dfsph"]["steps"] * 5 < runs["wcsph"]["steps"]
+    theirs = {"code": "splishsplash", "method": "dfsph", "threads": 1, "dx": dx, "particles": 600, "steps": 7,
+              "sim_s_per_wall_s": runs["dfsph"]["sim_s_per_wall_s"] / 2.0}
+    _print_until_ratios([runs["dfsph"], dict(runs["dfsph"], dx=2 * dx), theirs])
+    out = capsys.readouterr().out
+    assert out.count("vs splishsplash dfsph") == 1 and "2.00x" in out, out

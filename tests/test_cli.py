@@ -237,6 +237,19 @@ def test_examples_lists_every_shipped_scene_with_its_description(capsys):
     assert any("tiny.toml" in line and "a drop falls into a shallow pool" in line for line in lines)
 
 
+@pytest.mark.parametrize("argv,names", [
+    (["--until", "0.5", "--peers", "1", "2"], "--peers"),
+    (["--until", "0.5", "--network"], "--network"),
+    (["--until", "0.5", "--neighbours", "walk"], "--neighbours"),
+    (["--until", "20"], "at most 10"),
+], ids=["peers", "network", "walk", "too-long"])
+@pytest.mark.fast
+def test_bench_until_refuses_what_it_does_not_time(argv, names, capsys):
+    rc = main(["bench", *argv])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.startswith("sph bench: error: --until") and names in err, err
+
+
 @pytest.mark.fast
 def test_scene_with_bad_override_exits_2(capsys):
     rc = main(["scene", DAM_BREAK, "--set", "sph.kernel=gaussian"])
@@ -254,7 +267,8 @@ def test_scene_with_bad_override_exits_2(capsys):
     (["--help"], ["run", "bench", "scene", "--verbose"]),
     (["run", "--help"], ["--steps", "--until", "--out", "--precision", "--set", "--quiet", "--peers",
                          "--backend", "--threads", "config"]),
-    (["bench", "--help"], ["--sizes", "--precisions", "--threads", "--steps", "--external", "--json"]),
+    (["bench", "--help"], ["--sizes", "--precisions", "--threads", "--steps", "--external", "--json", "--until",
+                           "--solvers"]),
     (["scene", "--help"], ["--set", "config"]),
 ], ids=["sph", "run", "bench", "scene"])
 @pytest.mark.fast

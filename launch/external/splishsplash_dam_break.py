@@ -67,7 +67,9 @@ def _box_obj(path: str) -> None:
 
 
 def make_scene(tmp: str, dx: float, dt: float, method: str, boundary: str,
-               viscosity: float, wall_gap: float = 0.75) -> str:
+               viscosity: float, wall_gap: float = 0.75, max_dt: float | None = None) -> str:
+    """The scene file; with ``max_dt`` the step is SPlisHSPlasH's CFL step (its default factor 0.5)
+    up to ``max_dt``, starting at ``dt``; without, ``dt`` is fixed."""
     mesh = os.path.join(tmp, "tank_box.obj")
     _box_obj(mesh)
     r = 0.5 * dx
@@ -85,9 +87,9 @@ def make_scene(tmp: str, dx: float, dt: float, method: str, boundary: str,
         "simulationMethod": SIM_METHODS[method],
         "gravitation": [0.0, -G, 0.0],
         "timeStepSize": dt,
-        "cflMethod": 0,  # fixed time step
-        "cflFactor": 1.0,
-        "cflMaxTimeStepSize": dt,
+        "cflMethod": 0 if max_dt is None else 1,  # fixed time step, or the CFL step
+        "cflFactor": 1.0 if max_dt is None else 0.5,
+        "cflMaxTimeStepSize": dt if max_dt is None else max_dt,
         "numberOfStepsPerRenderUpdate": 1,
         "boundaryHandlingMethod": BOUNDARY_METHODS[boundary],
         "enablePartioExport": False,
@@ -148,39 +150,62 @@ def make_scene(tmp: str, dx: float, dt: float, method: str, boundary: str,
 
 
 def run(dx: float, steps: int, threads: int, method: str, boundary: str,
-        dt: float | None, viscosity: float, wall_gap: float) -> dict:
+        dt: float | None, viscosity: float, wall_gap: float, until: float | None = None,
+        max_dt: float = 0.005) -> dict:
+    """``steps`` fixed steps; or, with ``until``, the CFL step (up to ``max_dt``) from rest to
+    ``until`` simulated seconds, timed from the end of the first step."""
     if dt is None:
         dt = 1.0e-4 * dx / 0.0125  # same CFL number at every resolution
     tmp = tempfile.mkdtemp(prefix="sph_bench_splishsplash_")
     old_cwd = os.getcwd()
     try:
         os.chdir(tmp)  # anything written relative to cwd lands here too
-        scene_file = make_scene(tmp, dx, dt, method, boundary, viscosity, wall_gap)
+        scene_file = make_scene(tmp, dx, dt, method, boundary, viscosity, wall_gap,
+                                None if until is None else max_dt)
 
         import pysplishsplash as sph  # noqa: WPS433 (import after env set-up)
 
         base = sph.Exec.SimulatorBase()
         base.init(sceneFile=scene_file, useGui=False, useCache=False,
                   outputDir=os.path.join(tmp, "output"), initialPause=False,
-                  stopAt=1.0e6)
+                  stopAt=1.0e6 if until is None else until)
         base.initSimulation()
 
         sim = sph.Simulation.getCurrent()
         tm = sph.TimeManager.getCurrent()
         marks: list[float] = []
+        times: list[float] = []
+        iterations: list[tuple[int, int]] = []  # DFSPH: (density, divergence) iterations of each step
         target = steps + 1  # 1 warm-up step + timed steps
+        step_method = sim.getTimeStep() if method == "dfsph" else None
 
         def on_step():
             marks.append(time.perf_counter())
-            if len(marks) >= target:
+            times.append(float(tm.getTime()))
+            if step_method is not None:
+                iterations.append((step_method.getValueInt(sph.TimeStepDFSPH.SOLVER_ITERATIONS),
+                                   step_method.getValueInt(sph.TimeStepDFSPH.SOLVER_ITERATIONS_V)))
+            if until is None and len(marks) >= target:
                 # stopAt > 0 and < current time ends runSimulation's loop.
                 base.setValueFloat(base.STOP_AT, 1.0e-12)
 
         base.setTimeStepCB(on_step)
         base.runSimulation()  # deferred init, then steps until STOP_AT
+        if until is not None:
+            target = len(marks)
+            if target < 2 or times[-1] < 0.99 * until:
+                raise RuntimeError(f"stopped at t = {times[-1] if times else 0.0:g} s of {until:g} s")
+            steps = target - 1
         if len(marks) < target:
             raise RuntimeError(f"only {len(marks)} of {target} steps ran")
         wall = marks[target - 1] - marks[0]
+        simulated = times[target - 1] - times[0]
+        solves = {}
+        if iterations:  # the timed steps' (after the first)
+            timed = iterations[1:target]
+            for k, name in enumerate(("density", "divergence")):
+                solves[name] = {"iterations_per_step": sum(it[k] for it in timed) / max(len(timed), 1),
+                                "max": max((it[k] for it in timed), default=0)}
 
         model = sim.getFluidModel(0)
         n_fluid = int(model.numActiveParticles())
@@ -214,6 +239,11 @@ def run(dx: float, steps: int, threads: int, method: str, boundary: str,
         "threads": threads,
         "wall_s": wall,
         "particle_steps_per_s": n_fluid * steps / wall,
+        "simulated_s": simulated,
+        "mean_dt": simulated / max(steps, 1),
+        "sim_s_per_wall_s": simulated / wall,
+        "until_s": until,
+        "solves": solves,
         # extra details (not required by sph bench)
         "neighbours_fluid": nb_fluid / max(n_fluid, 1),
         "neighbours_boundary": nb_bound / max(n_fluid, 1),
@@ -246,6 +276,10 @@ def main(argv=None) -> int:
                    help="fixed time step (default 1e-4 * dx / 0.0125)")
     p.add_argument("--viscosity", type=float, default=0.01,
                    help="standard viscosity coefficient; 0 disables viscosity")
+    p.add_argument("--until", type=float, default=None,
+                   help="instead of --steps: the CFL step from rest to this simulated time in s")
+    p.add_argument("--max-dt", type=float, default=0.005,
+                   help="--until: the largest CFL step in s (SPlisHSPlasH's default 0.005)")
     p.add_argument("--wall-gap", type=float, default=0.75,
                    help="boundary surface distance outside the tank, in dx")
     a = p.parse_args(argv)
@@ -258,7 +292,7 @@ def main(argv=None) -> int:
     os.dup2(2, 1)
     try:
         res = run(a.dx, a.steps, a.threads, a.method, a.boundary, a.dt, a.viscosity,
-                  a.wall_gap)
+                  a.wall_gap, a.until, a.max_dt)
     finally:
         sys.stdout.flush()
         os.dup2(out_fd, 1)
