@@ -464,8 +464,9 @@ def peer_summary(peers: list[dict], base: dict, world: int, itemsize: int) -> di
     boundary = sum(p["overlap"]["boundary_rows"] for p in peers)
     out["overlap"] = {
         "interior_fraction": interior / (interior + boundary) if interior + boundary else None,
-        "note": "all peers: of the rows whose accelerations (and vorticity confinement) waited for a halo "
-                "exchange, the share computed while its messages travelled (rows out of reach of every ghost)"}
+        "note": "all peers: of the rows whose density (exchange 1), accelerations (exchange 2), vorticity "
+                "confinement (exchange 3) or DFSPH passes waited for a halo exchange, the share computed while "
+                "its messages travelled (rows out of reach of every ghost)"}
     if steps:
         out["bytes_per_step"] = {ph: b / max(1, base["steps"]) for ph, b in bytes_per_phase.items()}
     if peers[0]["device_transfer"] is not None:  # checked in _final_check: byte counts, or None on every peer

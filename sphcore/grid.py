@@ -352,6 +352,18 @@ def _build_neighbours(periodic, x, n_query, contiguous, cell_begin, cell_end, or
                       H2, nbr, counts)
 
 
+@literal_dispatch(1)
+@njit(cache=True, parallel=True)
+def _build_neighbour_rows(periodic, x, rows, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell, period,
+                          H2, nbr, counts):
+    """Neighbour lists of the rows ``rows`` only (neighbour_row); the other rows' lists are left as
+    they are (a peer lists its interior rows while the ghosts travel, the boundary rows after)."""
+    literally(periodic)
+    for k in prange(rows.shape[0]):
+        neighbour_row(periodic, True, rows[k], x, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell,
+                      period, H2, nbr, counts)
+
+
 class Grid:
     """Global uniform grid plus the per-step sort and neighbour list of one process.
 
@@ -438,20 +450,28 @@ class Grid:
         self._scratch[key] = src  # the old array becomes next step's scratch buffer
         return dst
 
-    def build_neighbours(self, x, n_query):
-        """Neighbour list of rows 0..n_query-1 against all rows of x (which must be sorted)."""
+    def build_neighbours(self, x, n_query, rows=None):
+        """Neighbour list of rows 0..n_query-1 against all rows of x (which must be sorted); with
+        ``rows`` (int64, a subset of them), of those rows only: the lists of the others are kept, also
+        when the capacity grows (a peer builds its interior rows' lists, then its boundary rows')."""
         if self.nbr.shape[0] < n_query:
             self.nbr = np.empty((n_query, self.capacity + 1), dtype=np.int32)
             self.counts = np.empty(n_query, dtype=np.int32)
         while True:
-            _build_neighbours(int(self.periodic), x, n_query, self.contiguous, self.cell_begin, self.cell_end,
-                              self.origin, self.cell, self.inv_cell, self.ncell, self.period, self.H2, self.nbr,
-                              self.counts)
-            most = int(self.counts[:n_query].max()) if n_query else 0
+            args = (self.contiguous, self.cell_begin, self.cell_end, self.origin, self.cell, self.inv_cell,
+                    self.ncell, self.period, self.H2, self.nbr, self.counts)
+            if rows is None:
+                _build_neighbours(int(self.periodic), x, n_query, *args)
+                most = int(self.counts[:n_query].max()) if n_query else 0
+            else:
+                _build_neighbour_rows(int(self.periodic), x, rows, *args)
+                most = int(self.counts[rows].max()) if rows.shape[0] else 0
             if most <= self.capacity:
                 return most
+            old = self.nbr
             self.capacity = int(most * 1.25) + 8
-            self.nbr = np.empty((max(n_query, self.nbr.shape[0]), self.capacity + 1), dtype=np.int32)
+            self.nbr = np.empty((max(n_query, old.shape[0]), self.capacity + 1), dtype=np.int32)
+            self.nbr[:old.shape[0], :old.shape[1] - 1] = old[:, :-1]  # the lists already built stay
 
     def cells_of(self, x):
         """(n, 3) int64 cell coordinates of positions x (n, 3)."""

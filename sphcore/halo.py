@@ -82,8 +82,14 @@ def expect_arrays(msg: dict, expected: dict, what: str):
             raise Reject("not finite", f"{what}: {name} holds NaN or Inf")
 
 
+POSITIONS = "positions"  # exchange 1b's phase: the ghost rows' id, x, v, m (and carried extras)
+
+
 class NullHalo:
     """No other peers: nothing to send, nothing to wait for."""
+
+    def pending(self, phase) -> bool:
+        return False
 
     def exchange_positions(self, sim):
         return
@@ -163,6 +169,7 @@ class PeerHalo:
         self._pending = {}       # phase -> names: ghost rows sent and not yet received (send_ghosts)
         self.overlapped_rows = 0  # rows computed while a phase travelled (split_rows), over the run
         self.after_rows = 0       # rows computed after it arrived
+        self.overlapped_by_phase = {}  # phase -> the rows of overlapped_rows computed while it travelled
 
     def _set_decomposition(self, dec):
         self.dec = dec
@@ -309,19 +316,36 @@ class PeerHalo:
             in_q = np.nonzero(self.dec.outgoing(cells_in, self.rank, q))[0]
             self._sent_rows[q] = np.concatenate([kept_now[own_q], n_kept + in_q])
             part = engine.rows_of(names, kept[own_q], renumber=False)
-            self._send(q, (step, "positions"), {k: np.concatenate([part[k], migrants[k][in_q]]) for k in names},
-                       "positions")
-        ghosts = [empty]
+            self._send(q, (step, POSITIONS), {k: np.concatenate([part[k], migrants[k][in_q]]) for k in names},
+                       POSITIONS)
         first = n_kept + len(migrants["id"])
+        if self.overlap and engine.sorts_ghosts_apart:
+            # the ghosts travel while the owned rows are sorted and the interior rows' density runs
+            # (Simulation._fields); receive_ghosts(sim, "positions") appends them
+            engine.rebuild(gone, migrants, empty)
+            self._pending[POSITIONS] = (first, empty)
+            return
+        ghosts = yield from self._receive_positions(sim, first, empty)
+        engine.rebuild(gone, migrants, ghosts)
+
+    def _receive_positions(self, sim, first, empty):
+        """Generator: the neighbours' rows of exchange 1b (their id, x, v, m... for our ghost rows,
+        numbered from ``first`` in the order of the neighbours), joined in that order."""
+        ghosts = [empty]
+        step, mine = sim.step_index, self.rank
         for q in self.neighbours:
-            check = self._particles_check(sim, q, "positions",
+            check = self._particles_check(sim, q, POSITIONS,
                                           lambda cells, q=q: self.dec.outgoing(cells, q, mine), {})
-            ghosts.append((yield from self.transport.recv(q, (step, "positions"), check)))
+            ghosts.append((yield from self.transport.recv(q, (step, POSITIONS), check)))
             count = len(ghosts[-1]["id"])
             self.ghosts_received += count
             self._ghost_rows[q] = (first, first + count)
             first += count
-        engine.rebuild(gone, migrants, {k: np.concatenate([g[k] for g in ghosts]) for k in names})
+        return {k: np.concatenate([g[k] for g in ghosts]) for k in empty}
+
+    def pending(self, phase) -> bool:
+        """Whether the ghost rows of ``phase`` were sent and are not received yet."""
+        return phase in self._pending
 
     def send_ghosts(self, sim, phase, names, kind=None):
         """Send the rows of the per-row arrays ``names`` that are the neighbours' ghosts, in the order of
@@ -339,8 +363,12 @@ class PeerHalo:
     def receive_ghosts(self, sim, phase):
         """Fill our ghost rows with the neighbours' rows of ``phase`` (``Engine.set_rows``: on a GPU
         only they cross PCIe); nothing if that phase was received already."""
-        names = self._pending.pop(phase, None)
-        if names is None:
+        if phase not in self._pending:
+            return
+        names = self._pending.pop(phase)
+        if phase == POSITIONS:  # exchange 1b: the ghost rows themselves
+            first, empty = names
+            sim.engine.append_ghosts((yield from self._receive_positions(sim, first, empty)))
             return
         step = sim.step_index
         engine = sim.engine
@@ -359,6 +387,7 @@ class PeerHalo:
         interior, boundary = sim.engine.split_rows(self.dec, self.rank, self.neighbours)
         self.overlapped_rows += interior.shape[0]
         self.after_rows += boundary.shape[0]
+        self.overlapped_by_phase[phase] = self.overlapped_by_phase.get(phase, 0) + interior.shape[0]
         return interior, boundary
 
     def owns(self, sim, x):

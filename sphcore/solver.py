@@ -15,7 +15,7 @@ import numpy as np
 from sphcore import stages as st
 from sphcore.backends import cpu
 from sphcore.choices import Integrator
-from sphcore.halo import NULL_HALO
+from sphcore.halo import NULL_HALO, POSITIONS
 from sphcore.health import Health
 from sphcore.initial import generate_particles
 from sphcore.model import Model
@@ -371,11 +371,23 @@ class Simulation:
         """Exchange 1, the neighbour lists, density and pressure (DFSPH: its factors and the
         reference density), exchange 2: everything the accelerations need."""
         yield from halo.exchange_positions(self)                   # migrants; ghosts' id, x, v, m (exchange 1)
-        with self.timers("grid"):
-            self._neighbours()                                     # x                -> order, neighbour lists
-        found, most = self._run(st.DENSITY, prm=prm, dt_prev=self.dtype.type(self.dt_prev),  # x, m (v) -> rho, p,
-                                commit=bool(commit))               # fill; continuity: commit the carried rho
-        self.neighbours_sum, self.neighbours_max = int(found), int(most)
+
+        def density(rows, wait):                                   # x, m (v) -> rho, p, fill; continuity:
+            with self.timers("grid"):                              # commit the carried rho
+                self.engine.neighbours(rows)                       # x -> the rows' neighbour lists
+            return self._run(st.DENSITY, prm=prm, dt_prev=self.dtype.type(self.dt_prev), commit=bool(commit),
+                             rows=rows)
+
+        if halo.pending(POSITIONS):                                # the ghosts travel: a CPU peer sorts
+            with self.timers("grid"):                              # and lists its owned rows meanwhile
+                self.engine.sort()                                 # x (owned)        -> order
+            counts = yield from self._overlapped(halo, POSITIONS, density, after=self._sort_ghosts)
+        else:
+            with self.timers("grid"):
+                self._neighbours()                                 # x                -> order, neighbour lists
+            counts = [density(None, True)]
+        self.neighbours_sum = sum(int(found) for found, _ in counts)
+        self.neighbours_max = max(int(most) for _, most in counts)
         if self.open.outlets:
             self._run(st.OUTLET_PRESSURE, prm=prm)                 # outlets: rho = rho0, p = p_out
         self.max_neighbours = max(self.max_neighbours, self.neighbours_max)
@@ -402,21 +414,30 @@ class Simulation:
             yield from self._overlapped(halo, "omega", lambda rows, wait: self._run(  # omega -> a (+=)
                 st.CONFINEMENT, prm=prm, rows=rows, wait=wait))
 
-    def _overlapped(self, halo, phase, run):
+    def _sort_ghosts(self):
+        with self.timers("grid"):
+            self.engine.sort_ghosts()                              # the ghosts after the owned rows
+
+    def _overlapped(self, halo, phase, run, after=None):
         """``run(rows, wait)`` over every owned row once the ghost rows of ``phase`` arrived: on a peer
         whose rows of ``phase`` are on their way, over the interior rows (no ghost within their reach)
         while they travel, then over the others; else in one pass (``rows`` None). The bits are those of one
         pass: a row's sums read only rows its stages do not write (stages.overlap_group), in the same
-        order. ``wait=False``: a device may still run the interior rows while the host waits. Returns
-        what each call of ``run`` returned (a stage's reductions: the caller combines them)."""
+        order. ``wait=False``: a device may still run the interior rows while the host waits. ``after``
+        runs once the phase has arrived (exchange 1: the ghosts' sort). Returns what each call of
+        ``run`` returned (a stage's reductions: the caller combines them)."""
         split = halo.split_rows(self, phase) if phase is not None else None
         if split is None:
             if phase is not None:
                 yield from halo.receive_ghosts(self, phase)        # nothing if it has arrived
+            if after is not None:
+                after()
             return [run(None, True)]
         interior, boundary = split
         first = run(interior, False)
         yield from halo.receive_ghosts(self, phase)
+        if after is not None:
+            after()
         return [first, run(boundary, True)]
 
     def _choose_dt(self, dt_cap, stats):

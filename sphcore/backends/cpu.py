@@ -13,7 +13,7 @@ import numpy as np
 from sphcore.backends.engine import Engine
 from sphcore.backends.generate import cpu_source, load_cpu_module
 from sphcore.decomposition import zone_codes, zone_tables
-from sphcore.state import CARRIED, EXTRA_PREFIX, FIELDS as STATE_FIELDS, ParticleState
+from sphcore.state import CARRIED, DERIVED, EXTRA_PREFIX, FIELDS as STATE_FIELDS, ParticleState
 
 _DRIVERS = {}  # (stage name, choice values) -> the driver
 
@@ -131,9 +131,40 @@ class CpuStages(Engine):
 
     def bin(self):
         """x -> (cell, id) order, and the neighbour lists unless the passes walk the cells."""
+        self.sort()
+        self.neighbours()
+
+    sorts_ghosts_apart = True
+
+    def sort(self):
         self._where = None  # the new sort's inverse permutation is formed when a halo first needs it
         self._split = None  # and the interior and boundary rows when a halo first asks for them
-        if self.model.neighbours == "walk":
-            self.sim.grid.sort(self.sim._state)
-        else:
-            self.sim.grid.bin(self.sim._state)
+        self.sim.grid.sort(self.sim._state)
+
+    def sort_ghosts(self):
+        # Sorting every row again leaves the owned rows where they are (sorted already: a stable
+        # counting sort, then insertion sorts that move nothing), so their lists, density and
+        # interior/boundary split stay valid. The step's permutation from the order of exchange 1 is
+        # the owned rows' first sort followed by the ghosts' sort.
+        s = self.sim._state
+        grid = self.sim.grid
+        owned = grid.last_permutation[:s.n_owned].copy()
+        self._where = None
+        grid.sort(s)
+        grid.last_permutation = np.concatenate([owned, grid.last_permutation[s.n_owned:]])
+
+    def neighbours(self, rows=None):
+        if self.model.neighbours != "walk":
+            s = self.sim._state
+            self.sim.grid.build_neighbours(s.x, s.n_owned, rows)
+
+    def append_ghosts(self, ghosts_in: dict):
+        s = self.sim._state
+        n = s.n_owned
+        new = ParticleState.from_carried({k: np.concatenate([a, ghosts_in[k]]) for k, a in s.carried_arrays(n).items()},
+                                         self.dtype)
+        new.n_owned = n
+        for name in DERIVED:
+            getattr(new, name)[:n] = getattr(s, name)[:n]
+        self.sim.state = new
+        self.scratch.resize(new.n, keep=n)

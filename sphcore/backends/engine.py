@@ -24,12 +24,18 @@ class Scratch:
         self.n = -1
         self.arrays = {}
 
-    def resize(self, n: int):
+    def resize(self, n: int, keep: int = 0):
+        """n rows; the first ``keep`` rows keep their values (the owned rows when the ghosts are
+        appended after their density was computed), the others start at their initial value."""
         if n == self.n:
             return
         for s in stage_specs.SCRATCH:
             rows = max(n, 1) if (not s.needed or self.needs[s.needed]) else 1
+            old = self.arrays.get(s.name)
             self.arrays[s.name] = self.allocate((rows,) if s.components == 1 else (rows, s.components), s.initial)
+            kept = min(keep, rows, old.shape[0]) if old is not None and rows > 1 else 0
+            if kept:
+                self.arrays[s.name][:kept] = old[:kept]
         self.n = n
 
     def __getattr__(self, name):
@@ -102,6 +108,32 @@ class Engine:
         """The particles after exchange 1: the owned rows but ``leaving`` (ascending), in their order,
         then the rows of ``owned_in`` (migrants; carried arrays by key), all owned, then the rows of
         ``ghosts_in`` as ghosts. Derived fields start at zero."""
+        raise NotImplementedError
+
+    # Exchange 1 overlapped (a CPU peer): the owned rows are sorted and the interior rows' lists and
+    # density computed while the ghosts travel; then the ghosts are appended, sorted after the owned
+    # rows (which keep their order), and the boundary rows listed. A backend without it sorts once,
+    # after the ghosts arrived (``bin``).
+    sorts_ghosts_apart = False
+
+    def append_ghosts(self, ghosts_in: dict):
+        """The ghost rows of ``ghosts_in`` (carried arrays by key) after the owned rows, which keep their
+        carried and derived values and their scratch (their density may have been computed already)."""
+        raise NotImplementedError
+
+    def sort(self):
+        """x -> (cell, id) order of every row now held (owned rows first, ghosts after them)."""
+        raise NotImplementedError
+
+    def sort_ghosts(self):
+        """After ``sort`` of the owned rows and ``append_ghosts``: the ghost rows in (cell, id) order
+        after the owned rows, which stay where they are; rows exchanged later (``rows_of``,
+        ``set_rows``) are still numbered as in exchange 1."""
+        raise NotImplementedError
+
+    def neighbours(self, rows=None):
+        """The neighbour lists of the owned rows, or of ``rows`` only (from ``split_rows``), in the
+        order of the last sort; nothing when the passes walk the cells."""
         raise NotImplementedError
 
     def row_layout(self, name) -> tuple:
