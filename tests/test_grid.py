@@ -114,6 +114,27 @@ def test_capacity_grows_for_crowded_particles():
     assert np.all(grid.counts == 299)
 
 
+def test_lists_built_for_two_subsets_of_rows_equal_one_build_also_when_the_capacity_grows():
+    # Given sparse particles and a dense cluster that overflows the capacity, sorted once
+    rng = np.random.default_rng(7)
+    x = np.concatenate([rng.uniform(0.0, 1.0, size=(400, 3)), 0.5 + rng.uniform(-0.01, 0.01, size=(40, 3))])
+    full = Grid(np.zeros(3), np.ones(3), 0.1, (False, False, False), np.float64, capacity=8)
+    state = make_state(x, rng)
+    full.bin(state)
+    # When another grid lists the sparse rows first (no growth), then the others (which grow it)
+    parts = Grid(np.zeros(3), np.ones(3), 0.1, (False, False, False), np.float64, capacity=8)
+    parts.sort(state)
+    crowded = full.counts > 8
+    first, second = np.flatnonzero(~crowded), np.flatnonzero(crowded)
+    assert len(first) and len(second)
+    assert parts.build_neighbours(state.x, state.n, first) <= 8 and parts.capacity == 8
+    assert parts.build_neighbours(state.x, state.n, second) == full.counts.max() and parts.capacity > 8
+    # Then every row's list is the one a single build gives, the first rows' kept through the growth
+    assert np.array_equal(parts.counts, full.counts)
+    for i in range(state.n):
+        assert np.array_equal(parts.nbr[i, :parts.counts[i]], full.nbr[i, :full.counts[i]]), i
+
+
 def test_periodic_axis_needs_three_cells():
     with pytest.raises(ValueError, match="at least 3 support radii"):
         Grid(np.zeros(3), np.array([0.25, 1.0, 1.0]), 0.1, (True, False, False), np.float64)
