@@ -188,6 +188,7 @@ def bench_until_case(scene_path: Path, dx: float, precision: str, threads: int, 
         "particle_steps_per_s": sim.n_particles * steps / wall, "first_step_s": first,
         "neighbours": sim.neighbours_sum / max(sim.state.n_owned, 1), "solves": solves,
         "limits": {k: v for k, v in sim.limit_counts.items() if v}, "leaks": sim.leaks,
+        "stage_total_s": {k: v["total_s"] for k, v in sim.timers.summary().items()},
     }
 
 

@@ -372,20 +372,23 @@ class Simulation:
         reference density), exchange 2: everything the accelerations need."""
         yield from halo.exchange_positions(self)                   # migrants; ghosts' id, x, v, m (exchange 1)
 
-        def density(rows, wait):                                   # x, m (v) -> rho, p, fill; continuity:
-            with self.timers("grid"):                              # commit the carried rho
-                self.engine.neighbours(rows)                       # x -> the rows' neighbour lists
+        def density(rows):                                         # x, m (v) -> rho, p, fill; continuity:
             return self._run(st.DENSITY, prm=prm, dt_prev=self.dtype.type(self.dt_prev), commit=bool(commit),
-                             rows=rows)
+                             rows=rows)                            # commit the carried rho
+
+        def listed_density(rows, wait):
+            with self.timers("grid"):
+                self.engine.neighbours(rows)                       # x                -> the rows' lists
+            return density(rows)
 
         if halo.pending(POSITIONS):                                # the ghosts travel: a CPU peer sorts
             with self.timers("grid"):                              # and lists its owned rows meanwhile
                 self.engine.sort()                                 # x (owned)        -> order
-            counts = yield from self._overlapped(halo, POSITIONS, density, after=self._sort_ghosts)
+            counts = yield from self._overlapped(halo, POSITIONS, listed_density, after=self._sort_ghosts)
         else:
             with self.timers("grid"):
                 self._neighbours()                                 # x                -> order, neighbour lists
-            counts = [density(None, True)]
+            counts = [density(None)]
         self.neighbours_sum = sum(int(found) for found, _ in counts)
         self.neighbours_max = max(int(most) for _, most in counts)
         if self.open.outlets:

@@ -141,3 +141,29 @@ def test_interior_rows_have_no_ghost_within_reach_and_overlap_off_gives_the_same
     result = waiting.final_arrays()
     for key in ("id", "x", "v", "rho"):
         assert np.array_equal(result[key], overlapped[key]), key
+
+
+@pytest.mark.fast
+def test_lists_are_built_once_a_step_in_one_process_and_in_two_parts_on_a_peer(monkeypatch):
+    # Given a count of the neighbour-list builds
+    from sphcore.grid import Grid
+    builds = []
+    build = Grid.build_neighbours
+
+    def counted(self, x, n_query, rows=None):
+        builds.append("all" if rows is None else "rows")
+        return build(self, x, n_query, rows)
+
+    monkeypatch.setattr(Grid, "build_neighbours", counted)
+    sc = scene("dam_break_2d", "particles.spacing=0.02")
+    # When one process steps twice: one build of every row a step
+    sim = Simulation(sc, "f64")
+    builds.clear()
+    sim.step()
+    sim.step()
+    assert builds == ["all", "all"]
+    # and when two peers step once: each builds its interior rows' lists, then its boundary rows'
+    cluster = InProcessCluster(sc, 2, "f64", dims=(2, 1, 1))
+    builds.clear()
+    cluster.step()
+    assert builds == ["rows"] * 4
