@@ -211,22 +211,13 @@ def _until_cases(scene_path: Path, dx: float, args) -> list[dict]:
                 out.append(r)
                 print(_until_row(r), flush=True)
     if args.external:
-        from launch.external.runner import available, run_external
+        from launch.external.runner import available
         if not available("splishsplash"):
             print("  splishsplash: not installed (scripts/setup_bench.sh installs it); skipped", file=sys.stderr)
             return out
         for threads in args.threads:
-            try:
-                r = run_external("splishsplash", "dfsph", dx=dx, steps=1, threads=threads,
-                                 timeout_s=3600, extra_args=["--until", repr(args.until),
-                                                             "--max-dt", repr(UNTIL_MAX_DT)])
-            except RuntimeError as e:
-                print(f"  splishsplash dfsph: failed: {e}", file=sys.stderr)
-                continue
-            r.setdefault("precision", "f64")
-            r["dx"] = dx
-            out.append(r)
-            print(_until_row(r), flush=True)
+            out += _reference("splishsplash", "dfsph", dx, threads, _until_row, steps=1, timeout_s=3600,
+                              extra_args=["--until", repr(args.until), "--max-dt", repr(UNTIL_MAX_DT)])
     return out
 
 
@@ -349,7 +340,7 @@ def _print_peer_ratios(results: list[dict]):
 
 
 def _external(dx: float, steps: int, threads_list) -> list[dict]:
-    from launch.external.runner import available, run_external
+    from launch.external.runner import available
     out = []
     for code, methods in (("splishsplash", ("wcsph", "dfsph")), ("pysph", ("wcsph",))):
         if not available(code):
@@ -357,16 +348,23 @@ def _external(dx: float, steps: int, threads_list) -> list[dict]:
             continue
         for method in methods:
             for threads in threads_list:
-                try:
-                    r = run_external(code, method, dx=dx, steps=steps, threads=threads)
-                except RuntimeError as e:
-                    print(f"  {code} {method}: failed: {e}", file=sys.stderr)
-                    continue
-                r.setdefault("precision", "f64")
-                r["dx"] = dx
-                out.append(r)
-                print(_row(r), flush=True)
+                out += _reference(code, method, dx, threads, _row, steps=steps)
     return out
+
+
+def _reference(code: str, method: str, dx: float, threads: int, row, **options) -> list[dict]:
+    """One reference code's run (launch/external/runner.run_external ``options``), printed with
+    ``row``: [its result], or [] after saying why it failed."""
+    from launch.external.runner import run_external
+    try:
+        r = run_external(code, method, dx=dx, threads=threads, **options)
+    except RuntimeError as e:
+        print(f"  {code} {method}: failed: {e}", file=sys.stderr)
+        return []
+    r.setdefault("precision", "f64")
+    r["dx"] = dx
+    print(row(r), flush=True)
+    return [r]
 
 
 def _row(r: dict) -> str:
