@@ -3,10 +3,13 @@
 ``Simulation.stages`` calls these hooks; each but ``send_ghosts`` and ``split_rows`` is a generator
 that yields while it waits for messages (a single process never waits):
 
-    exchange_positions   1a migrants change owner; 1b ghosts' id, x, v, m arrive (exchange 1)
+    exchange_positions   1a migrants change owner; 1b ghosts' id, x, v, m go out and arrive (exchange
+                         1), or, where the backend sorts the ghosts apart (a CPU peer with
+                         overlap), stay pending ("positions") while the owned rows are worked on
     send_ghosts          the ghosts' rows of per-particle values go out, in the order of exchange 1:
                          rho, p (exchange 2), vorticity omega, a DFSPH solve's lambda and v
-    receive_ghosts       ... and the neighbours' arrive into our ghost rows
+    receive_ghosts       ... and the neighbours' arrive into our ghost rows ("positions": appended)
+    pending              whether a phase was sent and is not received yet
     split_rows           while a phase is on its way: (interior, boundary) owned rows, the interior
                          ones out of reach of every ghost (computed meanwhile: solver._overlapped)
     reduce_max           the global max of the step statistics (adaptive dt, health check)
@@ -166,7 +169,8 @@ class PeerHalo:
         self._balanced_at = -1
         self._sent_rows = {}     # neighbour -> rows (before the grid sort) sent as its ghosts
         self._ghost_rows = {}    # neighbour -> (first, last) rows (before the sort) of its ghosts
-        self._pending = {}       # phase -> names: ghost rows sent and not yet received (send_ghosts)
+        self._pending = {}       # phase -> names: ghost rows sent and not yet received (send_ghosts);
+                                 # "positions" -> (first ghost row, empty carried arrays) (exchange 1b)
         self.overlapped_rows = 0  # rows computed while a phase travelled (split_rows), over the run
         self.after_rows = 0       # rows computed after it arrived
         self.overlapped_by_phase = {}  # phase -> the rows of overlapped_rows computed while it travelled
