@@ -118,6 +118,33 @@ def _scatter_by_key(keys, cell_start, perm):
         fill[k] += 1
 
 
+@njit(cache=True)
+def _scatter_ghosts(keys, n_owned, ncells, bin_start, perm):
+    """The ghost rows' bins [ncells, 2 ncells) and their stable scatter into perm[n_owned:], after
+    the owned rows' bins were filled by a sort of the owned rows alone (bin_start[ncells] = n_owned);
+    perm[:n_owned] is the identity (serial: O(ghosts + cells))."""
+    for c in range(ncells, 2 * ncells):
+        bin_start[c + 1] = 0
+    for i in range(n_owned, keys.shape[0]):
+        bin_start[keys[i] + 1] += 1
+    bin_start[ncells] = n_owned
+    for c in range(ncells, 2 * ncells):
+        bin_start[c + 1] += bin_start[c]
+    fill = bin_start[ncells:2 * ncells].copy()
+    for i in range(n_owned):
+        perm[i] = i
+    for i in range(n_owned, keys.shape[0]):
+        k = keys[i] - ncells
+        perm[fill[k]] = i
+        fill[k] += 1
+
+
+@njit(cache=True, parallel=True)
+def _sort_ghost_cells_by_id(bin_start, ncells, perm, ids):
+    for c in prange(ncells, 2 * ncells):
+        sort_bin_row(c, bin_start, perm, ids)
+
+
 @njit(cache=True, inline="always")
 def sort_bin_row(c, bin_start, perm, ids):
     """Insertion sort of bin c's slice of ``perm`` by id; cheap because slices are short and nearly
@@ -438,6 +465,29 @@ class Grid:
             setattr(state, name, self._gather(name, getattr(state, name)))
         for name, arr in state.extra.items():
             state.extra[name] = self._gather("extra:" + name, arr)
+
+    def sort_ghosts(self, state):
+        """After ``sort`` of the owned rows alone and the ghost rows' append: the ghost rows in (cell,
+        id) order after the owned rows, which stay where they are (the order, bins and cell ranges
+        one ``sort`` of every row gives, without sorting the owned rows again)."""
+        n, n_owned = state.n, state.n_owned
+        if self.bin_start[self.ncells] != n_owned or self.bin_start[2 * self.ncells] != n_owned:
+            raise RuntimeError("sort_ghosts: the owned rows were not sorted alone first")
+        self._ensure(n)
+        compute_cell_keys(state.x, n_owned, self.origin, self.inv_cell, self.ncell, self._keys)
+        _scatter_ghosts(self._keys, n_owned, self.ncells, self.bin_start, self._perm)
+        _sort_ghost_cells_by_id(self.bin_start, self.ncells, self._perm, state.id)
+        mixed = _cell_ranges(self.bin_start, self.ncells, self.cell_begin, self.cell_end)
+        if mixed:
+            raise RuntimeError(f"{mixed} grid cells hold both owned and ghost particles: a migration was missed")
+        self.contiguous = n_owned == n
+        self.last_permutation = self._perm[:n]
+        ghosts = self._perm[n_owned:n]
+        for name in CARRIED:  # only the ghost rows move
+            a = getattr(state, name)
+            a[n_owned:] = a[ghosts]
+        for a in state.extra.values():
+            a[n_owned:] = a[ghosts]
 
     def _gather(self, key, src):
         dst = self._scratch.get(key)

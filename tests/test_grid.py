@@ -175,3 +175,52 @@ def test_a_peer_with_ghost_rows_sees_the_same_neighbours_in_the_same_order(dims,
         for i in range(peer.n_owned):
             got = peer.id[g.nbr[i, : g.counts[i]]].tolist()
             assert got == reference[int(peer.id[i])]
+
+
+def test_sorting_the_ghosts_after_the_owned_rows_gives_the_order_of_one_sort():
+    # Given a peer's owned rows (in no order) and its ghost rows after them, as in exchange 1
+    from sphcore.decomposition import Decomposition
+    rng = np.random.default_rng(8)
+    H = 0.1
+    lo, hi = np.full(3, -H), np.full(3, 1.0 + H)
+    x = rng.uniform(0.0, 1.0, size=(900, 3))
+    ids = rng.permutation(900).astype(np.int64)
+    probe = Grid(lo, hi, H, (False, False, False), np.float64)
+    cells = probe.cells_of(x)
+    dec = Decomposition.uniform(tuple(probe.ncell), (2, 2, 1), (False, False, False))
+    own = rng.permutation(np.nonzero(dec.owner(cells) == 0)[0])
+    ghost = rng.permutation(np.nonzero(dec.in_halo(cells, 0))[0])
+    rows = np.concatenate([own, ghost])
+
+    def state(r, n_owned):
+        s = ParticleState.create(ids[r], x[r], rng.normal(size=(len(r), 3)), np.ones(len(r)), np.float64)
+        s.v[:] = x[r] * 3.0  # a carried field that must follow its row
+        s.extra["kappa"] = ids[r].astype(np.float64)
+        s.n_owned = n_owned
+        return s
+
+    # When one grid sorts every row at once, and another the owned rows first and the ghosts after
+    whole = state(rows, len(own))
+    once = Grid(lo, hi, H, (False, False, False), np.float64)
+    once.sort(whole)
+    apart = Grid(lo, hi, H, (False, False, False), np.float64)
+    owned = state(own, len(own))
+    apart.sort(owned)
+    first = apart.last_permutation.copy()
+    both = state(rows, len(own))
+    for name in ("id", "x", "v", "m"):
+        getattr(both, name)[:len(own)] = getattr(owned, name)
+    both.extra["kappa"][:len(own)] = owned.extra["kappa"]
+    apart.sort_ghosts(both)
+    # Then the rows, their carried fields, the bins and the cell ranges are the same, and the owned
+    # rows' permutation followed by the ghosts' is the single sort's
+    for name in ("id", "x", "v", "m"):
+        assert np.array_equal(getattr(both, name), getattr(whole, name)), name
+    assert np.array_equal(both.extra["kappa"], whole.extra["kappa"])
+    assert np.array_equal(apart.bin_start, once.bin_start)
+    assert np.array_equal(apart.cell_begin, once.cell_begin) and np.array_equal(apart.cell_end, once.cell_end)
+    assert np.array_equal(apart.last_permutation[:len(own)], np.arange(len(own)))
+    assert np.array_equal(np.concatenate([first, apart.last_permutation[len(own):]]), once.last_permutation)
+    # and sorting the ghosts is refused when the owned rows were not sorted alone first
+    with pytest.raises(RuntimeError, match="sorted alone"):
+        once.sort_ghosts(whole)

@@ -142,15 +142,14 @@ class CpuStages(Engine):
         self.sim.grid.sort(self.sim._state)
 
     def sort_ghosts(self):
-        # Sorting every row again leaves the owned rows where they are (sorted already: a stable
-        # counting sort, then insertion sorts that move nothing), so their lists, density and
-        # interior/boundary split stay valid. The step's permutation from the order of exchange 1 is
-        # the owned rows' first sort followed by the ghosts' sort.
+        # The owned rows stay where they are, so their lists, density and interior/boundary split
+        # stay valid. The step's permutation from the order of exchange 1 is the owned rows' sort
+        # followed by the ghosts' sort.
         s = self.sim._state
         grid = self.sim.grid
         owned = grid.last_permutation[:s.n_owned].copy()
         self._where = None
-        grid.sort(s)
+        grid.sort_ghosts(s)
         grid.last_permutation = np.concatenate([owned, grid.last_permutation[s.n_owned:]])
 
     def neighbours(self, rows=None):
