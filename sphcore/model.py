@@ -52,7 +52,7 @@ class Model:
     kernel, eos, viscosity, integrator (choices.* IntEnums); neighbours ("lists" or "walk"); choices (stages.CHOICES name -> code);
     gradient_moment (boundaries.lattice_gradient_moment); walls; mass (kg per particle); host_grid,
     grid_lo (float64 origin), lo (origin in the run's dtype), periodic (0/1); nu (m^2/s, 0 without a
-    physical viscosity); prm (params.Params); the flags dfsph, continuity, use_xsph, use_shifting,
+    physical viscosity); prm (params.Params); the flags dfsph, pair_gradients (DFSPH reads stored grad W_ij), continuity, use_xsph, use_shifting,
     use_drift, use_vorticity, use_diffusion; force_terms ((stage, scene value)
     of stages.FORCE_TERMS that are on); extra_names (the arrays carried in state.extra)."""
 
@@ -89,6 +89,10 @@ class Model:
         self.periodic = int(self.host_grid.periodic)
         self.nu = sph.nu if self.viscosity in (Viscosity.MULLER, Viscosity.MORRIS) else 0.0
         self.dfsph = sph.solver == "dfsph"
+        # DFSPH's dozen solver passes a step read grad W_ij stored per list entry by its factor pass
+        # (physics/pairs.gradient; 3 numbers per entry, 780 B a particle in f32): on the CPU, with
+        # lists. The GPU recomputes (memory is its limit; not measured there).
+        self.pair_gradients = self.dfsph and self.neighbours == "lists" and backend == "cpu"
         self.prm = make_params(
             dtype, H=self.H, h=self.h, s_w=s_w, s_g=s_g, s_l=s_l, w0=w(int(self.kernel), 0.0, self.H, s_w),
             rho0=rho0, c0=sph.sound_speed, clamp_negative=bool(sph.clamp_negative_pressure), alpha=sph.alpha,
@@ -118,6 +122,7 @@ class Model:
         self.choices = {"kernel": int(self.kernel), "eos": int(self.eos), "viscosity": int(self.viscosity),
                         "integrator": int(self.integrator), "periodic": self.periodic,
                         "neighbours": NEIGHBOURS[self.neighbours],
+                        "pair_gradients": int(self.pair_gradients),
                         "continuity": int(self.continuity), "use_drift": int(self.use_drift),
                         "add": int(self.use_xsph)}
 

@@ -186,7 +186,7 @@ class DFSPH(WCSPH):
             parts = yield from sim._overlapped(halo, travelling, source)
             err = yield from halo.reduce_sum(sim, f"{name}_err{it}", sum(int(e) for e in parts))
             mean = err / ERROR_QUANTUM / max(sim.n_particles, 1)
-            if (mean <= tolerance and it >= MIN_ITERATIONS) or it >= sph.max_iterations:
+            if (mean <= tolerance and it >= MIN_ITERATIONS[name]) or it >= sph.max_iterations:
                 break
             halo.send_ghosts(sim, f"{name}_lam{it}", ("lam",), kind="solver")
             yield from sim._overlapped(halo, f"{name}_lam{it}", update)

@@ -50,7 +50,7 @@ def test_the_solver_axis_runs_dfsph_with_its_tolerance_and_reports_its_iteration
     r = run_config("oscillating_drop", cfg[0])
     assert r["outcome"] == "ok" and 0 < r["error"] < 0.2
     density_its, divergence_its = r["iterations"]
-    assert density_its >= 2 and divergence_its >= 2  # MIN_ITERATIONS per solve
+    assert density_its >= 2 and divergence_its >= 1  # MIN_ITERATIONS per solve
     wcsph = run_config("oscillating_drop", dict(BASE, dx=cfg[0]["dx"]))
     assert wcsph["iterations"] is None
     assert r["steps"] * 5 < wcsph["steps"]  # the flow-speed step, not the acoustic one

@@ -38,6 +38,7 @@ class CpuStages(Engine):
         self._where = None
         self._split = None
         self.all_rows = np.empty(0, dtype=np.int64)
+        self._grad_w = np.empty((3, 0, 0), dtype=self.dtype)
         super().__init__(sim)
 
     def allocate(self, shape, initial):
@@ -64,9 +65,18 @@ class CpuStages(Engine):
             return self.scratch.arrays[name]
         if name in ("nbr", "counts", "cells", "cell_begin", "cell_end"):
             return getattr(sim.grid, name)
+        if name == "grad_w":
+            return self._pair_array(sim.grid.nbr.shape if self.model.pair_gradients else (1, 1))
         if name == "lo":
             return self.model.lo
         return getattr(self.model.walls, name[len("wall_"):])  # wall_kind, wall_data, wall_tables
+
+    def _pair_array(self, shape):
+        """The (3, n, capacity) grad W_ij of the list entries (stages.ARGUMENTS "grad_w"), grown with the
+        lists and never shrunk; written by the DFSPH factor pass before any pass reads it."""
+        if self._grad_w.shape[1] < shape[0] or self._grad_w.shape[2] != shape[1]:
+            self._grad_w = np.empty((3, max(shape[0], self._grad_w.shape[1]), shape[1]), dtype=self.dtype)
+        return self._grad_w
 
     def launch(self, stage, choices, n, rows, arguments, wait):
         return driver(stage, choices)(n, rows, *arguments)

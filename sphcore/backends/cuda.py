@@ -627,6 +627,7 @@ class CudaStages(Engine):
         self.host_stale = False    # the device ran a stage since the last download
         self.all_rows = cuda.device_array(0, dtype=np.int64)
         self._split = None
+        self._no_pairs = None  # the grad_w placeholder (array)
         super().__init__(sim)
 
     def allocate(self, shape, initial):
@@ -791,6 +792,10 @@ class CudaStages(Engine):
             return self.grid.d_nbr
         if name == "counts":
             return self.grid.d_counts
+        if name == "grad_w":  # the GPU recomputes grad W_ij (model.pair_gradients is off): a placeholder
+            if self._no_pairs is None:
+                self._no_pairs = cuda.device_array((3, 1, 1), dtype=self.dtype)
+            return self._no_pairs
         if name == "cells":
             return self.grid.host.cells
         if name in ("cell_begin", "cell_end"):
@@ -850,6 +855,7 @@ def argument_types(dtype: str) -> dict:
     prm = example_params(dtype)
     by_kind = {"params": numba.typeof(prm), "float": f, "int": types.int64, "bool": types.boolean, "vec": types.Array(f, 2, "C"),
                "row": types.Array(f, 1, "C"), "nbr": types.Array(types.int32, 2, "F"),
+               "pairs": types.Array(f, 3, "C"),
                "counts": types.Array(types.int32, 1, "C"), "cells": numba.typeof(cells),
                "cell_rows": types.Array(types.int64, 1, "C"), "kinds": types.Array(types.int32, 1, "C"),
                "table": types.Array(f, 2, "C"), "terms64": types.Array(types.float64, 1, "C")}

@@ -46,12 +46,10 @@ v divergence-free there (B&K run it at the end of a step, after the neighbour se
 in the cycle); non-pressure accelerations a_np; dt; v* = v + dt a_np; the density solver corrects v*;
 x += dt v*. Time steps are limited by the flow speed, not by a speed of sound.
 """
-import math
 
 from numba import njit
 from sphcore.physics.continuity import density_rate_pair
-from sphcore.physics.kernels import dw_dr_over_r
-from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
+from sphcore.physics.pairs import candidate, computed_gradient, gradient, span_rows, spans, store_gradient, walk_start
 from sphcore.physics.walls import wall_density_gradient
 from sphcore.physics.real import like
 
@@ -78,10 +76,13 @@ def relaxation(jacobi_ratio: float) -> float:
 # D_i is floored at the full-neighbourhood value d0: a particle with a partial neighbourhood (free
 # surface, wall) has a small D_i and would otherwise receive an overshooting lambda_i.
 D_FLOOR = 1.0
-# Every solve runs at least this many iterations (as SPlisHSPlasH does): the mean error is diluted
-# by the many particles that need no correction, so without a minimum a thin compressed layer at a
-# wall would never be corrected.
-MIN_ITERATIONS = 2
+# Every solve runs at least this many iterations (pressure updates), as SPlisHSPlasH's DFSPH does
+# (its pressure solve at least 2, its divergence solve at least 1): the mean error is diluted by the
+# many particles that need no correction, so without a minimum a thin compressed layer at a wall
+# would never be corrected. The divergence solve's second minimum iteration cost two of a step's
+# ~12 neighbour passes and changed nothing that the density solve does not correct next
+# (docs/BENCHMARKS.md, 2026-12-05).
+MIN_ITERATIONS = {"density": 2, "divergence": 1}
 # How far a particle may move in one step (timestep.py, "displacement": max|v| dt + max|a| dt^2 <= L).
 # The density prediction rho* = rho + dt D rho/Dt is linear in dt, the wall's share Phi(d) is not, and
 # DFSPH's wall push acts only through the solve: fast particles crossed walls (found behind them and
@@ -158,11 +159,12 @@ def inverse_diagonal(gx, gy, gz, wx, wy, wz, sum_sq, d0):
 
 
 @njit(cache=True, inline="always")
-def dfsph_factor_row(kernel, periodic, neighbours, prm, i, x, m, rho, nbr, counts, cells, cell_begin, cell_end,
-                     wall_kind, wall_data, wall_tables, fill, p, wgrad, inv_d, lam_sum):
+def dfsph_factor_row(kernel, periodic, neighbours, pair_gradients, prm, i, x, m, rho, nbr, counts, cells, cell_begin,
+                     cell_end, wall_kind, wall_data, wall_tables, fill, p, wgrad, inv_d, lam_sum, grad_w):
     """DFSPH set-up of row i at the step's positions: the wall gradient g_i^wall, 1 / D_i, and p_i = 0
-    (the forces stage then gives the non-pressure accelerations); returns rho_i / rho0 - 1 quantised
-    (dfsph.quantized_offset; summed over all rows: the mean density).   (dfsph.py)"""
+    (the forces stage then gives the non-pressure accelerations); with ``pair_gradients`` it keeps
+    grad W_ij of every list entry for the solves' passes (pairs.store_gradient). Returns
+    rho_i / rho0 - 1 quantised (dfsph.quantized_offset; summed over all rows: the mean density).   (dfsph.py)"""
     gx = like(prm.H, 0.0)
     gy = like(prm.H, 0.0)
     gz = like(prm.H, 0.0)
@@ -174,14 +176,13 @@ def dfsph_factor_row(kernel, periodic, neighbours, prm, i, x, m, rho, nbr, count
             j, dx, dy, dz, r2, inside = candidate(neighbours, periodic, x, nbr, i, k, prm, cells)
             if not inside:
                 continue
-            r_ij = math.sqrt(r2)
-            if r2 == 0.0:
-                continue
-            g = m[j] * dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
-            gx += g * dx
-            gy += g * dy
-            gz += g * dz
-            sum_sq += g * g * r2
+            wx, wy, wz = computed_gradient(kernel, dx, dy, dz, r2, prm)  # grad W_ij
+            store_gradient(pair_gradients, grad_w, i, k, wx, wy, wz)
+            m_j = m[j]
+            gx += m_j * wx
+            gy += m_j * wy
+            gz += m_j * wz
+            sum_sq += m_j * m_j * (wx * wx + wy * wy + wz * wz)
     rho_i = rho[i]
     wx, wy, wz = wall_density_gradient(kernel, prm, wall_kind, wall_data, wall_tables, x, i, rho_i, fill[i])
     wgrad[i, 0] = wx
@@ -194,8 +195,8 @@ def dfsph_factor_row(kernel, periodic, neighbours, prm, i, x, m, rho, nbr, count
 
 
 @njit(cache=True, inline="always")
-def dfsph_source_row(kernel, periodic, neighbours, divergence, prm, i, x, v, m, rho, nbr, counts, cells, cell_begin,
-                     cell_end, wgrad, inv_d, dt, share, rho_ref, lam_sum, lam):
+def dfsph_source_row(kernel, periodic, neighbours, pair_gradients, divergence, prm, i, x, v, m, rho, nbr, counts, cells,
+                     cell_begin, cell_end, grad_w, wgrad, inv_d, dt, share, rho_ref, lam_sum, lam):
     """This iteration's lambda_i = s_i / D_i from the velocities v, projected so that the solve's sum
     stays >= 0 with free surfaces (dfsph.py); returns the density error it removes, |lambda_i| D_i / rho0,
     quantised (dfsph.quantized_error: an integer, so the sum over rows is the same in any order; 0 for a
@@ -206,16 +207,12 @@ def dfsph_source_row(kernel, periodic, neighbours, divergence, prm, i, x, v, m, 
     for span in range(spans(neighbours)):
         k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
         for k in range(k_lo, k_hi):
-            j, dx, dy, dz, r2, inside = candidate(neighbours, periodic, x, nbr, i, k, prm, cells)
+            j, wx, wy, wz, inside = gradient(neighbours, pair_gradients, kernel, periodic, x, nbr, grad_w, i, k, prm,
+                                             cells)
             if not inside:
                 continue
             found += 1
-            r_ij = math.sqrt(r2)
-            if r2 == 0.0:
-                continue
-            g = dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
-            rate += density_rate_pair(m[j], v[i, 0] - v[j, 0], v[i, 1] - v[j, 1], v[i, 2] - v[j, 2],
-                                      g * dx, g * dy, g * dz)
+            rate += density_rate_pair(m[j], v[i, 0] - v[j, 0], v[i, 1] - v[j, 1], v[i, 2] - v[j, 2], wx, wy, wz)
     s = source(divergence, rho[i], rho_ref, rate, dt, share)
     inv = inv_d[i]
     if found == 0:  # alone: no neighbour to push, nothing to solve
@@ -227,8 +224,8 @@ def dfsph_source_row(kernel, periodic, neighbours, divergence, prm, i, x, v, m, 
 
 
 @njit(cache=True, inline="always")
-def dfsph_update_row(kernel, periodic, neighbours, prm, i, x, m, lam, nbr, counts, cells, cell_begin, cell_end, wgrad,
-                     inv_dt, v, lam_sum):
+def dfsph_update_row(kernel, periodic, neighbours, pair_gradients, prm, i, x, m, lam, nbr, counts, cells, cell_begin,
+                     cell_end, grad_w, wgrad, inv_dt, v, lam_sum):
     """v_i -= (1/dt) [sum_j m_j (lambda_i + lambda_j) grad W_ij + lambda_i g_i^wall];
     lam_sum_i += lambda_i.   (dfsph.py)"""
     l_i = lam[i]
@@ -239,16 +236,14 @@ def dfsph_update_row(kernel, periodic, neighbours, prm, i, x, m, lam, nbr, count
     for span in range(spans(neighbours)):
         k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
         for k in range(k_lo, k_hi):
-            j, dx, dy, dz, r2, inside = candidate(neighbours, periodic, x, nbr, i, k, prm, cells)
+            j, wx, wy, wz, inside = gradient(neighbours, pair_gradients, kernel, periodic, x, nbr, grad_w, i, k, prm,
+                                             cells)
             if not inside:
                 continue
-            r_ij = math.sqrt(r2)
-            if r2 == 0.0:
-                continue
-            g = m[j] * (l_i + lam[j]) * dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
-            sx += g * dx
-            sy += g * dy
-            sz += g * dz
+            c = m[j] * (l_i + lam[j])
+            sx += c * wx
+            sy += c * wy
+            sz += c * wz
     v[i, 0] -= inv_dt * sx
     v[i, 1] -= inv_dt * sy
     v[i, 2] -= inv_dt * sz
