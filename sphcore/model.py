@@ -89,7 +89,7 @@ class Model:
         self.periodic = int(self.host_grid.periodic)
         self.nu = sph.nu if self.viscosity in (Viscosity.MULLER, Viscosity.MORRIS) else 0.0
         self.dfsph = sph.solver == "dfsph"
-        # DFSPH's dozen solver passes a step read grad W_ij stored per list entry by its factor pass
+        # DFSPH's factor and dozen solver passes a step read grad W_ij stored per list entry by the density pass
         # (physics/pairs.gradient; 3 numbers per entry, 780 B a particle in f32): on the CPU, with
         # lists. The GPU recomputes (memory is its limit; not measured there).
         self.pair_gradients = self.dfsph and self.neighbours == "lists" and backend == "cpu"

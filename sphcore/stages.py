@@ -52,8 +52,8 @@ CHOICES = MappingProxyType({
     "periodic": ((0, 1), 0, "1 if any axis is periodic: minimum-image separations and wrapping"),
     "neighbours": ((NEIGHBOUR_LISTS, CELL_WALK), NEIGHBOUR_LISTS,
                    "how a neighbour pass finds j: the stored lists, or a walk of the 27 cells (grid.py)"),
-    "pair_gradients": ((0, 1), 0, "DFSPH: 1 if the solver passes read grad W_ij that the factor pass stored per "
-                                  "list entry (grad_w; lists on the CPU: pairs.gradient)"),
+    "pair_gradients": ((0, 1), 0, "DFSPH: 1 if the density pass stores grad W_ij per list entry (grad_w) and the "
+                                  "DFSPH passes read it (lists on the CPU: pairs.gradient)"),
     "continuity": ((0, 1), 0, "1 if the density is carried by the continuity equation (sph.density)"),
     "divergence": ((0, 1), 0, "DFSPH: 1 for the divergence solve on v, 0 for the density solve on v*"),
     "add": ((0, 1), 0, "shifting: 1 adds to dv (XSPH wrote it), 0 writes it"),
@@ -79,7 +79,7 @@ ARGUMENTS = MappingProxyType({
     # the grid (grid.Grid / cuda.DeviceGrid)
     "nbr": ("nbr", "neighbour lists: row k holds i's neighbour rows j"),
     "counts": ("counts", "neighbour list lengths"),
-    "grad_w": ("pairs", "grad W_ij of i's k-th list entry, [c, i, k] (1/m^4 in 3D; with pair_gradients)"),
+    "grad_w": ("pairs", "grad W_ij of i's k-th list entry, [c, i, k] (1/m^4 in 3D; with pair_gradients: the density pass writes it)"),
     "cells": ("cells", "the grid's geometry for the cell walk (grid.Cells)"),
     "cell_begin": ("cell_rows", "first row of every cell (rows sorted by cell, id)"),
     "cell_end": ("cell_rows", "one past the last row of every cell"),
@@ -213,9 +213,9 @@ class Stage:
 
 
 # -- the stages, in the order a step may run them (solver.Simulation.stages orders them) ------------
-DENSITY = Stage("density", density_row, writes=("rho_c", "rho", "p", "fill"),
+DENSITY = Stage("density", density_row, writes=("rho_c", "rho", "p", "fill", "grad_w"),
                 reduce=("sum", "imax")).check()  # returns i's neighbour count: their sum and maximum
-DFSPH_FACTOR = Stage("dfsph_factor", dfsph_factor_row, writes=("p", "wgrad", "inv_d", "lam_sum", "grad_w"),
+DFSPH_FACTOR = Stage("dfsph_factor", dfsph_factor_row, writes=("p", "wgrad", "inv_d", "lam_sum"),
                      reduce=("sum",)).check()  # returns rho_i / rho0 - 1 quantised: the mean density
 FORCES = Stage("forces", acceleration_row, writes=("a",)).check()
 DIFFUSION = Stage("diffusion", diffusion_row, writes=("drho",)).check()

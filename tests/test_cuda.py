@@ -189,7 +189,7 @@ def _check_compiled(compiled: dict, precision: str):
     assert expected <= set(compiled), (precision, expected - set(compiled))
     # the default path of a scene (Wendland C2, Tait, artificial viscosity) is among them
     assert FORCES_DEFAULT in compiled, precision
-    assert "density kernel=2 eos=1 periodic=0 neighbours=0 continuity=0" in compiled, precision
+    assert "density kernel=2 eos=1 periodic=0 neighbours=0 pair_gradients=0 continuity=0" in compiled, precision
     # and every neighbour pass compiles walking the cells as well
     walking = {s.name for s in stages.STAGES if "neighbours" in s.choices}
     assert walking == {k.split()[0] for k in compiled if " neighbours=1" in k and not k.startswith("f64 ")}, precision

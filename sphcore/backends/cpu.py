@@ -73,9 +73,15 @@ class CpuStages(Engine):
 
     def _pair_array(self, shape):
         """The (3, n, capacity) grad W_ij of the list entries (stages.ARGUMENTS "grad_w"), grown with the
-        lists and never shrunk; written by the DFSPH factor pass before any pass reads it."""
-        if self._grad_w.shape[1] < shape[0] or self._grad_w.shape[2] != shape[1]:
-            self._grad_w = np.empty((3, max(shape[0], self._grad_w.shape[1]), shape[1]), dtype=self.dtype)
+        lists and never shrunk; written by the density pass before any pass reads it. When a peer's
+        boundary rows grow the lists' capacity after its interior rows stored theirs, the stored
+        entries move along, as the lists do (Grid.build_neighbours)."""
+        old = self._grad_w
+        if old.shape[1] < shape[0] or old.shape[2] != shape[1]:
+            self._grad_w = np.empty((3, max(shape[0], old.shape[1]), shape[1]), dtype=self.dtype)
+            kept = min(old.shape[2], shape[1]) - 1  # the lists' spare column holds nothing
+            if kept > 0:
+                self._grad_w[:, :old.shape[1], :kept] = old[:, :, :kept]
         return self._grad_w
 
     def launch(self, stage, choices, n, rows, arguments, wait):

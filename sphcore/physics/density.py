@@ -14,7 +14,7 @@ from sphcore.physics.kernels import w
 from sphcore.physics.continuity import density_rate_pair
 from sphcore.physics.eos import pressure
 from sphcore.physics.kernels import dw_dr_over_r
-from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
+from sphcore.physics.pairs import candidate, computed_gradient, span_rows, spans, store_gradient, walk_start
 from sphcore.physics.walls import fill_fraction, moving_wall_rate, wall_density_gradient, wall_terms
 from sphcore.physics.real import like
 
@@ -26,15 +26,17 @@ def density_pair(kernel, m_j, r_ij, H, s_w):
 
 
 @njit(cache=True, inline="always")
-def density_row(kernel, eos, periodic, neighbours, continuity, prm, i, x, v, m, nbr, counts, cells, cell_begin,
-                cell_end, wall_kind, wall_data, wall_tables, wall_motion, dt_prev, commit, rho_c, rho, p, fill):
+def density_row(kernel, eos, periodic, neighbours, pair_gradients, continuity, prm, i, x, v, m, nbr, counts, cells,
+                cell_begin, cell_end, wall_kind, wall_data, wall_tables, wall_motion, dt_prev, commit, rho_c, rho, p, fill,
+                grad_w):
     """rho_i = m_i W(0) + sum_j m_j W_ij + theta_i rho0 Phi(d_i);  p_i = EOS(rho_i); fill_i = theta_i.
     With ``continuity``: rho_i = rho_c[i] + dt_prev D rho_i/Dt, the carried density advanced by the
     continuity equation over the previous step with the velocities that moved the particles here
     (relative to a moving wall's for its share, motion.py)
     (stored back if ``commit``; a carried 0 starts at rho0). Returns i's neighbour count twice (their
     sum and maximum over the rows are the step's neighbour statistics). (density.py, continuity.py,
-    eos.py, walls.py)"""
+    eos.py, walls.py). With ``pair_gradients`` (DFSPH, lists) it also stores grad W_ij of every list
+    entry, read by the DFSPH factor and solves (pairs.gradient)."""
     rho_i = m[i] * prm.w0
     rate = like(rho_i, 0.0)
     found = 0  # neighbours of i (the step's neighbour statistics)
@@ -48,6 +50,9 @@ def density_row(kernel, eos, periodic, neighbours, continuity, prm, i, x, v, m, 
             found += 1
             r_ij = math.sqrt(r2)
             rho_i += density_pair(kernel, m[j], r_ij, prm.H, prm.s_w)
+            if pair_gradients:
+                wx, wy, wz = computed_gradient(kernel, dx, dy, dz, r2, prm)
+                store_gradient(pair_gradients, grad_w, i, k, wx, wy, wz)
             if continuity and r2 > 0.0:
                 g = dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
                 rate += density_rate_pair(m[j], v[i, 0] - v[j, 0], v[i, 1] - v[j, 1], v[i, 2] - v[j, 2],

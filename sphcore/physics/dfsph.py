@@ -49,7 +49,7 @@ x += dt v*. Time steps are limited by the flow speed, not by a speed of sound.
 
 from numba import njit
 from sphcore.physics.continuity import density_rate_pair
-from sphcore.physics.pairs import candidate, computed_gradient, gradient, span_rows, spans, store_gradient, walk_start
+from sphcore.physics.pairs import gradient, span_rows, spans, walk_start
 from sphcore.physics.walls import wall_density_gradient
 from sphcore.physics.real import like
 
@@ -160,11 +160,11 @@ def inverse_diagonal(gx, gy, gz, wx, wy, wz, sum_sq, d0):
 
 @njit(cache=True, inline="always")
 def dfsph_factor_row(kernel, periodic, neighbours, pair_gradients, prm, i, x, m, rho, nbr, counts, cells, cell_begin,
-                     cell_end, wall_kind, wall_data, wall_tables, fill, p, wgrad, inv_d, lam_sum, grad_w):
+                     cell_end, grad_w, wall_kind, wall_data, wall_tables, fill, p, wgrad, inv_d, lam_sum):
     """DFSPH set-up of row i at the step's positions: the wall gradient g_i^wall, 1 / D_i, and p_i = 0
-    (the forces stage then gives the non-pressure accelerations); with ``pair_gradients`` it keeps
-    grad W_ij of every list entry for the solves' passes (pairs.store_gradient). Returns
-    rho_i / rho0 - 1 quantised (dfsph.quantized_offset; summed over all rows: the mean density).   (dfsph.py)"""
+    (the forces stage then gives the non-pressure accelerations); returns rho_i / rho0 - 1 quantised
+    (dfsph.quantized_offset; summed over all rows: the mean density). With ``pair_gradients`` the
+    density pass stored grad W_ij per list entry: this pass and the solves read it.   (dfsph.py)"""
     gx = like(prm.H, 0.0)
     gy = like(prm.H, 0.0)
     gz = like(prm.H, 0.0)
@@ -173,11 +173,10 @@ def dfsph_factor_row(kernel, periodic, neighbours, pair_gradients, prm, i, x, m,
     for span in range(spans(neighbours)):
         k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
         for k in range(k_lo, k_hi):
-            j, dx, dy, dz, r2, inside = candidate(neighbours, periodic, x, nbr, i, k, prm, cells)
+            j, wx, wy, wz, inside = gradient(neighbours, pair_gradients, kernel, periodic, x, nbr, grad_w, i, k, prm,
+                                             cells)
             if not inside:
                 continue
-            wx, wy, wz = computed_gradient(kernel, dx, dy, dz, r2, prm)  # grad W_ij
-            store_gradient(pair_gradients, grad_w, i, k, wx, wy, wz)
             m_j = m[j]
             gx += m_j * wx
             gy += m_j * wy
