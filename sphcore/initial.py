@@ -258,7 +258,7 @@ def scene_report(scene: Scene) -> dict:
     the CFL limits at the initial speeds and the body forces."""
     from sphcore.boundaries import build_walls
     from sphcore.choices import KERNELS
-    from sphcore.scene import BYTES_PER_CELL, BYTES_PER_PARTICLE, resource_estimate
+    from sphcore.scene import BYTES_PER_CELL, bytes_per_particle, resource_estimate
     from sphcore.timestep import choose_dt
     dx = scene.particles.spacing
     H = scene.sph.support * dx
@@ -285,5 +285,5 @@ def scene_report(scene: Scene) -> dict:
     dt, limit = choose_dt(scene.time.mode, scene.time.dt, scene.time.cfl, 0.5 * H, c0, vmax, amax, nu,
                           scene.terms.shifting)
     return {"blocks": counts, "inlets": inlets, "particles": n, "cells": est["cells"],
-            "memory": n * BYTES_PER_PARTICLE + est["cells"] * BYTES_PER_CELL,
+            "memory": n * bytes_per_particle(scene) + est["cells"] * BYTES_PER_CELL,
             "neighbours": lattice_neighbours(scene.sph.support, scene.dim), "dt": dt, "dt_limit": limit}

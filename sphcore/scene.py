@@ -1214,6 +1214,16 @@ BYTES_PER_CELL = 32
 # x and v) and the host mirror of the state. Measured: the peak RSS of setting up the 3D dam break at
 # 10 M particles grows by 108 B per particle in float32 and 80 B in float64 (scripts/bench_setup.py).
 HOST_BYTES_PER_PARTICLE = {"cpu": BYTES_PER_PARTICLE, "cuda": 160}
+# DFSPH on the CPU with lists stores grad W_ij per list entry (model.pair_gradients): 3 float64 per
+# entry of the default list capacity (64 + a spare column).
+PAIR_GRADIENT_BYTES = 3 * 65 * 8
+
+
+def bytes_per_particle(s: Scene, backend: str = "cpu") -> int:
+    """The host memory estimate per particle of one process (HOST_BYTES_PER_PARTICLE; with DFSPH's
+    stored pair gradients when the scene has them)."""
+    stored = s.sph.solver == "dfsph" and s.run.neighbours == "lists" and backend == "cpu"
+    return HOST_BYTES_PER_PARTICLE[backend] + (PAIR_GRADIENT_BYTES if stored else 0)
 
 
 def block_estimate(block: Block, dim: int, dx: float) -> float:
@@ -1274,7 +1284,7 @@ def resource_estimate(s: Scene, backend: str = "cpu") -> dict:
     H = s.sph.support * dx
     cells = math.prod(max(e, 0.0) / H + 3.0 for e in _domain_extent(s)[: s.dim])
     return {"per_block": per_block, "particles": particles, "cells": cells,
-            "memory": particles * HOST_BYTES_PER_PARTICLE[backend] + cells * BYTES_PER_CELL}
+            "memory": particles * bytes_per_particle(s, backend) + cells * BYTES_PER_CELL}
 
 
 def _check_resources(s: Scene, available: int | None = None, backend: str = "cpu"):
@@ -1289,7 +1299,7 @@ def _check_resources(s: Scene, available: int | None = None, backend: str = "cpu
     available = available_memory() if available is None else available
     if available is not None and est["memory"] > available:
         raise SceneError(f"particles.spacing = {dx!r}: about {est['particles']:.3g} particles and {est['cells']:.3g} "
-                         f"grid cells need about {size_text(est['memory'])} of memory ({HOST_BYTES_PER_PARTICLE[backend]} B per "
+                         f"grid cells need about {size_text(est['memory'])} of memory ({bytes_per_particle(s, backend)} B per "
                          f"particle, {BYTES_PER_CELL} B per cell), more than the {size_text(available)} available "
                          "here; raise particles.spacing or make the blocks or the domain smaller")
 

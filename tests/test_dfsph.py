@@ -78,6 +78,24 @@ def test_stored_pair_gradients_are_the_computed_ones_and_step_alike():
     assert not Simulation(scene("dam_break", "particles.spacing=0.05"), "f64").model.pair_gradients
 
 
+def test_the_memory_estimate_counts_the_stored_pair_gradients():
+    # Given the dam break with WCSPH, with DFSPH on lists, and with DFSPH walking the cells
+    from sphcore.scene import PAIR_GRADIENT_BYTES, SceneError as Refused, _check_resources, resource_estimate
+    wcsph = scene("dam_break")
+    dfsph = scene("dam_break", "sph.solver='dfsph'")
+    walk = scene("dam_break", "sph.solver='dfsph'", "run.neighbours='walk'")
+    n = resource_estimate(wcsph)["particles"]
+    # Then only DFSPH with lists on the CPU needs the gradients' bytes per particle
+    assert resource_estimate(dfsph)["memory"] - resource_estimate(wcsph)["memory"] == pytest.approx(n * PAIR_GRADIENT_BYTES)
+    assert resource_estimate(walk)["memory"] == resource_estimate(wcsph)["memory"]
+    assert resource_estimate(dfsph, "cuda")["memory"] == resource_estimate(wcsph, "cuda")["memory"]
+    # and a machine with room for the WCSPH run but not for the gradients refuses the DFSPH one
+    room = int(resource_estimate(wcsph)["memory"] * 1.5)
+    _check_resources(wcsph, available=room)
+    with pytest.raises(Refused, match=f"{600 + PAIR_GRADIENT_BYTES} B per particle"):
+        _check_resources(dfsph, available=room)
+
+
 @pytest.fixture(scope="module")
 def resting_tank():
     sc = scene("hydrostatic_2d", "particles.spacing=0.025", "time.dt=0.001", "sph.density_tolerance=1e-5",
