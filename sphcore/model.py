@@ -104,7 +104,8 @@ class Model:
             restitution=scene.boundary.restitution, friction=scene.boundary.friction,
             wall_gap=scene.boundary.gap * dx, dx=dx, inv_s=1.0 / S, dim3=scene.dim == 3,
             wall_table_end=table_end(self.H, dx),
-            delta_hc0=sph.delta * self.h * sph.sound_speed, wall_nu=terms.wall_friction, **SOLVERS[sph.solver].params(scene, self.kernel, self.H, dx),
+            delta_hc0=sph.delta * self.h * sph.sound_speed, wall_nu=terms.wall_friction,
+            p_background=sph.background_pressure, **SOLVERS[sph.solver].params(scene, self.kernel, self.H, dx),
         )
         self.use_xsph = terms.xsph > 0.0
         self.use_shifting = terms.shifting > 0.0

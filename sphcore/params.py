@@ -50,6 +50,7 @@ class Params(NamedTuple):
     dfsph_omega: float  # DFSPH Jacobi relaxation (physics/dfsph.relaxation)
     delta_hc0: float    # delta-SPH diffusion factor delta h c0 (m^2/s; physics/continuity.py)
     wall_nu: float      # the walls' turbulent friction: nu of its law of the wall (m^2/s; 0 = off; physics/wall_friction.py)
+    p_background: float  # background pressure p_b added to the EOS pressure (Pa; physics/eos.py; 0 = off)
 
 
 def make_params(dtype, **values) -> Params:

@@ -144,6 +144,11 @@ class SPH:
                               range=(0.0, math.inf), min_exclusive=True, control=LIVE)
     clamp_negative_pressure: bool = spec(True, "floor pressure at 0 (free surfaces); false for closed flows",
                                          control=LIVE)
+    background_pressure: float = spec(0.0, "p_b in Pa added to every particle's EOS pressure (Morris, Fox & Zhu "
+                                      "1997): keeps a confined flow's pressure positive, so that no void opens "
+                                      "where it would be negative (a lid-driven cavity's corner); wcsph, closed "
+                                      "flows only (clamp_negative_pressure = false, no inlets or outlets); 0 = off",
+                                      range=(0.0, 1.0e9), control=LIVE)
     viscosity: str = spec("artificial", "viscosity model", choices=tuple(VISCOSITIES), control=COMPILED)
     alpha: float = spec(0.02, "artificial viscosity coefficient (viscosity = artificial)", range=(0.0, 10.0),
                         control=LIVE)
@@ -983,6 +988,14 @@ def _check_combinations(s: Scene, files: bool = True, backend: str = "cpu") -> S
     if s.sph.solver == "dfsph" and s.sph.density == "continuity":
         raise SceneError("sph.density = 'continuity': sph.solver = 'dfsph' solves for the summation density "
                          "(use sph.density = 'summation', or sph.solver = 'wcsph')")
+    if s.sph.background_pressure > 0.0:
+        # a free surface under a background pressure has nothing to hold it: the fluid flies apart
+        where = ("sph.solver = 'dfsph' (its pressure is solved, not an EOS)" if s.sph.solver == "dfsph" else
+                 "sph.clamp_negative_pressure = true (a free surface)" if s.sph.clamp_negative_pressure else
+                 "inlets or outlets (their pressure is set, not an EOS)" if (s.inlets or s.outlets) else "")
+        if where:
+            raise SceneError(f"sph.background_pressure = {s.sph.background_pressure!r}: only for a closed WCSPH flow, "
+                             f"but the scene has {where}; set sph.background_pressure = 0")
     if s.sph.viscosity in ("muller", "morris") and s.sph.nu <= 0:
         raise SceneError(f"sph.nu = {s.sph.nu!r}: viscosity = {s.sph.viscosity!r} needs nu > 0")
     if s.fluid.initial_flow == "taylor_green":

@@ -110,6 +110,7 @@ CASES = {
     "sph.delta": (("sph.density=continuity",), "sph.delta=0.05", True),
     "sph.sound_speed": ((), "sph.sound_speed=25.0", True),
     "sph.clamp_negative_pressure": ((), "sph.clamp_negative_pressure=false", True),
+    "sph.background_pressure": (("sph.clamp_negative_pressure=false",), "sph.background_pressure=500.0", True),
     "sph.alpha": ((), "sph.alpha=0.2", True),
     "sph.nu": (("sph.viscosity=muller", "sph.nu=1e-5"), "sph.nu=1e-3", True),
     "terms.xsph": (TERMS, "terms.xsph=0.3", True),

@@ -840,7 +840,7 @@ def example_params(dtype: str):
                        external=(0.0, 0.0, 0.0), central_omega2=1.0, central=(0.0, 0.0, 0.0), period=(0.0, 0.0, 0.0),
                        xsph_eps=0.0, shift_a=1.0, sigma=0.0, st_threshold=0.0, vorticity_eps=0.0, restitution=0.0,
                        friction=0.0, wall_gap=0.0, dx=0.5, inv_s=1.0, dim3=True, wall_table_end=1.0, dfsph_d0=1.0,
-                       dfsph_omega=0.5, delta_hc0=1.0, wall_nu=0.0)
+                       dfsph_omega=0.5, delta_hc0=1.0, wall_nu=0.0, p_background=0.0)
 
 
 def argument_types(dtype: str) -> dict:

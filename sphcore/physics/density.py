@@ -78,5 +78,5 @@ def density_row(kernel, eos, periodic, neighbours, pair_gradients, continuity, p
             if commit:
                 rho_c[i] = rho_i
     rho[i] = rho_i
-    p[i] = pressure(eos, rho_i, prm.rho0, prm.c0, prm.clamp_negative)
+    p[i] = pressure(eos, rho_i, prm.rho0, prm.c0, prm.clamp_negative, prm.p_background)
     return found, found

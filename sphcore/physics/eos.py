@@ -15,8 +15,12 @@ from sphcore.physics.real import like
 
 
 @njit(cache=True, inline="always")
-def pressure(eos, rho, rho0, c0, clamp_negative):
-    """Pressure p(rho) in Pa for EOS code ``eos`` (sphcore.choices.EOS)."""
+def pressure(eos, rho, rho0, c0, clamp_negative, p_b):
+    """Pressure p(rho) in Pa for EOS code ``eos`` (sphcore.choices.EOS), plus the background pressure
+    p_b (sph.background_pressure; Morris, Fox & Zhu 1997, J. Comput. Phys. 136: 214-226). A constant
+    adds no force on a uniform lattice; on disordered particles the symmetric pressure term pushes
+    them apart where they thin out, so a confined flow's corner where the pressure would fall
+    below zero (a lid-driven cavity's upstream lid corner) is refilled instead of left empty."""
     if eos == 0:  # EOS.LINEAR
         p = c0 * c0 * (rho - rho0)
     else:  # EOS.TAIT with gamma = 7, unrolled power
@@ -26,7 +30,7 @@ def pressure(eos, rho, rho0, c0, clamp_negative):
         p = rho0 * c0 * c0 / like(rho, 7.0) * (r4 * r2 * ratio - like(rho, 1.0))
     if clamp_negative and p < like(p, 0.0):
         p = like(p, 0.0)
-    return p
+    return p + p_b
 
 
 @njit(cache=True, inline="always")
