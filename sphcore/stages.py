@@ -79,7 +79,8 @@ ARGUMENTS = MappingProxyType({
     # the grid (grid.Grid / cuda.DeviceGrid)
     "nbr": ("nbr", "neighbour lists: row k holds i's neighbour rows j"),
     "counts": ("counts", "neighbour list lengths"),
-    "grad_w": ("pairs", "grad W_ij of i's k-th list entry, [c, i, k] (1/m^4 in 3D; with pair_gradients: the density pass writes it)"),
+    "grad_w": ("pairs", "grad W_ij of i's k-th list entry, [c, i, k] (1/m^4 in 3D; with pair_gradients: "
+                        "the density pass writes it)"),
     "cells": ("cells", "the grid's geometry for the cell walk (grid.Cells)"),
     "cell_begin": ("cell_rows", "first row of every cell (rows sorted by cell, id)"),
     "cell_end": ("cell_rows", "one past the last row of every cell"),

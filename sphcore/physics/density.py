@@ -27,8 +27,8 @@ def density_pair(kernel, m_j, r_ij, H, s_w):
 
 @njit(cache=True, inline="always")
 def density_row(kernel, eos, periodic, neighbours, pair_gradients, continuity, prm, i, x, v, m, nbr, counts, cells,
-                cell_begin, cell_end, wall_kind, wall_data, wall_tables, wall_motion, dt_prev, commit, rho_c, rho, p, fill,
-                grad_w):
+                cell_begin, cell_end, wall_kind, wall_data, wall_tables, wall_motion, dt_prev, commit, rho_c, rho, p,
+                fill, grad_w):
     """rho_i = m_i W(0) + sum_j m_j W_ij + theta_i rho0 Phi(d_i);  p_i = EOS(rho_i); fill_i = theta_i.
     With ``continuity``: rho_i = rho_c[i] + dt_prev D rho_i/Dt, the carried density advanced by the
     continuity equation over the previous step with the velocities that moved the particles here

@@ -18,10 +18,11 @@ are 27, the cells around i's own (grid.cell_span; k is the row itself) and a can
 A pass that needs only the kernel gradient grad W_ij of each pair (the DFSPH solver's passes, a
 dozen a step) calls ``gradient`` instead of ``candidate``: with the compile-time choice
 ``pair_gradients`` it reads grad W_ij from ``grad_w``, where an earlier pass of the same step (the
-density pass, which has r_ij already) stored it per list entry with ``store_gradient``. Reading three numbers replaces the
-separation, the square root, the division and the kernel polynomial: a solver pass on the 3D dam
-break at 49 k particles took a third of the time (docs/BENCHMARKS.md). Both ways give the same
-numbers: the stored value is the one ``gradient`` would compute.
+density pass, which has r_ij already) stored it per list entry with ``store_gradient``. Reading
+three numbers replaces the separation, the square root, the division and the kernel polynomial: a
+solver pass on the 3D dam break at 49 k particles took a third to a half of the time
+(docs/BENCHMARKS.md). Both ways give the same numbers: the stored value is the one ``gradient``
+would compute.
 """
 
 import math
