@@ -19,7 +19,7 @@ from sphcore.choices import EOSES, INTEGRATORS, KERNELS, VISCOSITIES, Viscosity
 from sphcore.params import make_params
 from sphcore.physics.external import ramp_factor
 from sphcore.physics.kernels import kernel_constants, w
-from sphcore.scene import Scene
+from sphcore.scene import Scene, stores_pair_gradients
 from sphcore.solvers import SOLVERS
 
 DTYPES = {"f32": np.float32, "f64": np.float64}
@@ -92,7 +92,7 @@ class Model:
         # DFSPH's factor and dozen solver passes a step read grad W_ij stored per list entry by the density pass
         # (physics/pairs.gradient; 3 numbers per entry, 780 B a particle in f32): on the CPU, with
         # lists. The GPU recomputes (memory is its limit; not measured there).
-        self.pair_gradients = self.dfsph and self.neighbours == "lists" and backend == "cpu"
+        self.pair_gradients = stores_pair_gradients(scene, backend)
         self.prm = make_params(
             dtype, H=self.H, h=self.h, s_w=s_w, s_g=s_g, s_l=s_l, w0=w(int(self.kernel), 0.0, self.H, s_w),
             rho0=rho0, c0=sph.sound_speed, clamp_negative=bool(sph.clamp_negative_pressure), alpha=sph.alpha,

@@ -1232,11 +1232,15 @@ HOST_BYTES_PER_PARTICLE = {"cpu": BYTES_PER_PARTICLE, "cuda": 160}
 PAIR_GRADIENT_BYTES = 3 * 65 * 8
 
 
+def stores_pair_gradients(s: Scene, backend: str = "cpu") -> bool:
+    """Whether a run stores grad W_ij per list entry (model.pair_gradients): DFSPH, lists, the CPU."""
+    return s.sph.solver == "dfsph" and s.run.neighbours == "lists" and backend == "cpu"
+
+
 def bytes_per_particle(s: Scene, backend: str = "cpu") -> int:
     """The host memory estimate per particle of one process (HOST_BYTES_PER_PARTICLE; with DFSPH's
     stored pair gradients when the scene has them)."""
-    stored = s.sph.solver == "dfsph" and s.run.neighbours == "lists" and backend == "cpu"
-    return HOST_BYTES_PER_PARTICLE[backend] + (PAIR_GRADIENT_BYTES if stored else 0)
+    return HOST_BYTES_PER_PARTICLE[backend] + (PAIR_GRADIENT_BYTES if stores_pair_gradients(s, backend) else 0)
 
 
 def block_estimate(block: Block, dim: int, dx: float) -> float:
