@@ -38,12 +38,12 @@ def decomposition_for(scene, grid, n_peers: int, x=None) -> Decomposition:
             raise ValueError(f"decomposition.dims = {list(dims)} makes {int(np.prod(dims))} blocks, but the run "
                              f"has {n_peers} peers")
     else:
-        dims = choose_dims(n_peers, grid.ncell, scene.dim, scene.decomposition.layout)
+        dims = choose_dims(n_peers, grid.ncell, scene.dim, scene.decomposition.layout, reach=grid.reach)
     periodic = tuple(bool(p > 0) for p in grid.period)
     ncell = tuple(int(n) for n in grid.ncell)
     if x is None:
-        return Decomposition.uniform(ncell, dims, periodic)
-    return Decomposition.balanced(ncell, dims, grid.cells_of(x), periodic)
+        return Decomposition.uniform(ncell, dims, periodic, reach=grid.reach)
+    return Decomposition.balanced(ncell, dims, grid.cells_of(x), periodic, reach=grid.reach)
 
 
 def take_block(sim: Simulation, dec: Decomposition, rank: int):

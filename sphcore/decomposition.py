@@ -2,10 +2,11 @@
 
 The domain's global grid (``sphcore.grid.Grid``: same origin and cell size everywhere) is cut into
 ``dims = (px, py, pz)`` blocks along cell boundaries, so every cell belongs to exactly one peer.
-Cells are at least one support radius wide, so for a peer r:
+Cells are at least H / R wide (H the support radius, R the grid's ``reach``: 1 or 2 cells per
+support radius), so for a peer r:
 
 * its *calculation area* is its block of cells;
-* the *incoming zone* (ghosts) is the ring of cells one cell deep around the block — everything a
+* the *incoming zone* (ghosts) is the ring of cells R cells deep around the block — everything a
   particle of the block can interact with;
 * its *outgoing zone towards peer q* is the set of its own cells inside q's incoming zone
   (diagonal neighbours included).
@@ -23,10 +24,10 @@ import numpy as np
 from numba import njit, prange
 
 
-def choose_dims(n_peers: int, ncell, dim: int, layout: str = "auto") -> tuple[int, int, int]:
+def choose_dims(n_peers: int, ncell, dim: int, layout: str = "auto", *, reach: int) -> tuple[int, int, int]:
     """Peers per axis. ``slabs``: all along the axis with the most cells. ``auto``: the factorisation
     of n_peers into dim factors whose blocks have the smallest halo (surface) per cell, with at
-    least 2 cells per block along each cut axis."""
+    least 2 support radii (2 ``reach`` cells) per block along each cut axis."""
     ncell = np.asarray(ncell, dtype=np.int64)
     if n_peers < 1:
         raise ValueError(f"need at least one peer, got {n_peers}")
@@ -47,7 +48,7 @@ def choose_dims(n_peers: int, ncell, dim: int, layout: str = "auto") -> tuple[in
         raise ValueError(f"layout must be 'auto' or 'slabs', got {layout!r}")
     best, best_cost = None, math.inf
     for dims in candidates:
-        if any(ncell[a] < 2 * dims[a] for a in range(3) if dims[a] > 1):
+        if any(ncell[a] < 2 * reach * dims[a] for a in range(3) if dims[a] > 1):
             continue
         size = ncell / np.asarray(dims)
         surface = sum(2 * math.prod(size[b] for b in range(dim) if b != a) for a in range(dim) if dims[a] > 1)
@@ -56,7 +57,7 @@ def choose_dims(n_peers: int, ncell, dim: int, layout: str = "auto") -> tuple[in
             best, best_cost = dims, surface
     if best is None:
         raise ValueError(f"{n_peers} peers do not fit a grid of {ncell.tolist()} cells "
-                         f"(each block needs at least 2 cells along every cut axis)")
+                         f"(each block needs at least {2 * reach} cells, 2 support radii, along every cut axis)")
     return best
 
 
@@ -64,29 +65,32 @@ def choose_dims(n_peers: int, ncell, dim: int, layout: str = "auto") -> tuple[in
 class Decomposition:
     """Blocks of grid cells. ``cuts[a]`` (dims[a] + 1,) are the cell indices where blocks start along
     axis a (cuts[a][0] = 0, cuts[a][-1] = ncell[a]); ``periodic[a]`` wraps the halo across the
-    domain boundary."""
+    domain boundary; ``reach`` is the grid's cells per support radius, the incoming zone's depth
+    in cells (Grid.reach)."""
 
     ncell: tuple
     dims: tuple
     cuts: tuple
     periodic: tuple
+    reach: int
 
     @classmethod
-    def uniform(cls, ncell, dims, periodic=(False, False, False)) -> "Decomposition":
+    def uniform(cls, ncell, dims, periodic=(False, False, False), *, reach) -> "Decomposition":
         cuts = tuple(tuple(int(round(k * ncell[a] / dims[a])) for k in range(dims[a] + 1)) for a in range(3))
-        return cls(tuple(int(n) for n in ncell), tuple(dims), cuts, tuple(bool(p) for p in periodic))
+        return cls(tuple(int(n) for n in ncell), tuple(dims), cuts, tuple(bool(p) for p in periodic), int(reach))
 
     @classmethod
-    def balanced(cls, ncell, dims, cell_index, periodic=(False, False, False)) -> "Decomposition":
+    def balanced(cls, ncell, dims, cell_index, periodic=(False, False, False), *, reach) -> "Decomposition":
         """Cuts that give each block row about the same number of particles (cell_index: (n, 3)
         integer cell coordinates of the particles), axis by axis."""
         histograms = [np.bincount(cell_index[:, a], minlength=ncell[a]) for a in range(3)]
-        return cls.from_histograms(ncell, dims, histograms, periodic)
+        return cls.from_histograms(ncell, dims, histograms, periodic, reach=reach)
 
     @classmethod
-    def from_histograms(cls, ncell, dims, histograms, periodic=(False, False, False)) -> "Decomposition":
+    def from_histograms(cls, ncell, dims, histograms, periodic=(False, False, False), *, reach) -> "Decomposition":
         """Balanced cuts from per-axis particle counts per cell layer (``histograms[a]``: (ncell[a],)),
-        which peers can sum over the network; every block keeps at least 2 cells along a cut axis."""
+        which peers can sum over the network; every block keeps at least 2 support radii (2 reach
+        cells) along a cut axis."""
         cuts = []
         for a in range(3):
             cum = np.concatenate([[0.0], np.cumsum(np.asarray(histograms[a], dtype=np.float64))])
@@ -96,11 +100,12 @@ class Decomposition:
                 cut = int(np.searchsorted(cum, target))  # first layer boundary at or past the target,
                 if cut > 0 and target - cum[cut - 1] < cum[min(cut, len(cum) - 1)] - target:
                     cut -= 1                             # or the one before it if that is closer
-                cut = min(max(cut, c[-1] + 2), ncell[a] - 2 * (dims[a] - k))
+                cut = min(max(cut, c[-1] + 2 * reach), ncell[a] - 2 * reach * (dims[a] - k))
                 c.append(cut)
             c.append(int(ncell[a]))
             cuts.append(tuple(c))
-        return cls(tuple(int(n) for n in ncell), tuple(dims), tuple(cuts), tuple(bool(p) for p in periodic))
+        return cls(tuple(int(n) for n in ncell), tuple(dims), tuple(cuts), tuple(bool(p) for p in periodic),
+                   int(reach))
 
     @property
     def n_peers(self) -> int:
@@ -143,8 +148,9 @@ class Decomposition:
         return gap
 
     def in_halo(self, cells: np.ndarray, rank: int) -> np.ndarray:
-        """Mask of cells in the incoming zone of ``rank`` (one cell around its block, not inside)."""
-        return self._gap(cells, rank) == 1
+        """Mask of cells in the incoming zone of ``rank`` (``reach`` cells around its block, not inside)."""
+        gap = self._gap(cells, rank)
+        return (gap >= 1) & (gap <= self.reach)
 
     def neighbours(self, rank: int) -> list[int]:
         """Peers whose blocks touch the incoming zone of ``rank`` (diagonals included), ascending."""
@@ -162,7 +168,7 @@ class Decomposition:
                     n = self.ncell[a]
                     d = min(d, max(lo[a] - (qhi[a] - n) + 1, (qlo[a] - n) - hi[a] + 1, 0),
                             max(lo[a] - (qhi[a] + n) + 1, (qlo[a] + n) - hi[a] + 1, 0))
-                if d > 1:
+                if d > self.reach:
                     touch = False
             if touch:
                 out.append(q)
@@ -177,17 +183,17 @@ class Decomposition:
 
 def zone_tables(dec: Decomposition, rank: int, neighbours) -> tuple:
     """The decomposition as ``zone_code`` reads it: cuts (3, max dims + 1) int64 (padded with the
-    axis's cell count), dims (3,), the neighbours' blocks (k, 6) [lo (3), hi (3)] int64, ncell (3,)
-    and periodic (3,) int64."""
+    axis's cell count), dims (3,), the neighbours' blocks (k, 6) [lo (3), hi (3)] int64, ncell (3,),
+    periodic (3,) int64 and the reach (an int: the incoming zone's depth in cells)."""
     width = max(dec.dims) + 1
     cuts = np.array([list(c) + [c[-1]] * (width - len(c)) for c in dec.cuts], dtype=np.int64)
     boxes = np.array([np.concatenate(dec.cell_box(q)) for q in neighbours], dtype=np.int64).reshape(-1, 6)
     return (cuts, np.array(dec.dims, dtype=np.int64), boxes, np.array(dec.ncell, dtype=np.int64),
-            np.array(dec.periodic, dtype=np.int64))
+            np.array(dec.periodic, dtype=np.int64), int(dec.reach))
 
 
 @njit(cache=True, inline="always")
-def zone_code(c0, c1, c2, cuts, dims, boxes, ncell, periodic):
+def zone_code(c0, c1, c2, cuts, dims, boxes, ncell, periodic, reach):
     """(owner, mask) of a particle in cell (c0, c1, c2): the rank owning the cell (as
     ``Decomposition.owner``) and bit b set when the cell lies in the incoming zone of neighbour b
     (``Decomposition.outgoing`` to the b-th row of ``boxes``, periodic wrap included)."""
@@ -217,13 +223,14 @@ def zone_code(c0, c1, c2, cuts, dims, boxes, ncell, periodic):
                 d = min(d, max(lo - (c - n), 0) + max((c - n) - (hi - 1), 0))
                 d = min(d, max(lo - (c + n), 0) + max((c + n) - (hi - 1), 0))
             gap = max(gap, d)
-        if gap == 1:
+        if gap >= 1 and gap <= reach:
             mask |= 1 << b
     return owner, mask
 
 
 @njit(cache=True, parallel=True)
-def zone_codes(cells, cuts, dims, boxes, ncell, periodic, owner, mask):
+def zone_codes(cells, cuts, dims, boxes, ncell, periodic, reach, owner, mask):
     """zone_code of every row of ``cells`` (n, 3) into owner (n,) and mask (n,)."""
     for i in prange(cells.shape[0]):
-        owner[i], mask[i] = zone_code(cells[i, 0], cells[i, 1], cells[i, 2], cuts, dims, boxes, ncell, periodic)
+        owner[i], mask[i] = zone_code(cells[i, 0], cells[i, 1], cells[i, 2], cuts, dims, boxes, ncell, periodic,
+                                      reach)

@@ -1,8 +1,12 @@
 """Uniform-grid neighbour search with a deterministic neighbour order.
 
 The grid is global: the same ``origin`` and ``cell`` sizes on every process, so a cell means the same
-box of space everywhere. Cells are at least one support radius H wide, so all neighbours of a
-particle lie in its own cell and the 3^dim cells around it.
+box of space everywhere. Cells are at least H / R wide, where H is the support radius and R the
+grid's *reach* (``run.cells_per_support``, 1 or 2), so all neighbours of a particle lie in its own
+cell and the R cells on each side of it: (2R + 1)^dim cells. Halving the cells (R = 2) halves the
+candidates a search tests (about 225 -> 118 per particle on the 3D dam break: the 5^3 cells, less
+those farther than H, cover 10.5 H^3 against 20.6 H^3 for 3^3 cells of H, around a support sphere
+of 4.2 H^3) for 8x the cells (docs/BENCHMARKS.md).
 
 Each step (``Grid.bin``):
 
@@ -11,7 +15,7 @@ Each step (``Grid.bin``):
    sort by global ``id`` — rows end up ordered by (cell, id), whatever order they came in;
 3. all persistent particle arrays are reordered to that order (locality for the passes);
 4. with neighbour lists (``NEIGHBOUR_LISTS``), the list of every owned particle is built by scanning
-   neighbour cells in a fixed order (z, then y, then x; the three x-neighbours of a row are contiguous
+   neighbour cells in a fixed order (z, then y, then x; the x-neighbours of a row are contiguous
    in memory). With the cell walk (``CELL_WALK``) nothing is built: every neighbour pass visits the
    same cells in the same order itself (``home_cell``, ``cell_span``), reading ``cell_begin`` and
    ``cell_end``, so its candidates arrive in the order the list would hold them.
@@ -20,7 +24,8 @@ Summing in this order is what makes a run reproducible bit for bit, and what let
 run (ghost rows included) reproduce a single-process run exactly.
 
 Periodic axes wrap cell indices and use minimum-image distances; along them the cell size is
-stretched to L / floor(L / H) so the cells tile the period exactly (at least 3 cells are required).
+stretched to L / (R floor(L / H)) so the cells tile the period exactly (the period must hold at
+least 3 support radii).
 """
 import math
 from typing import NamedTuple
@@ -35,8 +40,8 @@ from sphcore.state import CARRIED
 
 # How a neighbour pass finds its neighbours (the compile-time choice ``neighbours``, stages.CHOICES)
 NEIGHBOUR_LISTS = 0  # read the list Grid.build_neighbours wrote (nbr, counts)
-CELL_WALK = 1        # walk the 27 cells around the row (cells, cell_begin, cell_end); no list is stored
-SPANS = 27           # neighbour cells visited by the walk, z then y then x (in 2D the z layers are empty)
+CELL_WALK = 1        # walk the cells around the row (cells, cell_begin, cell_end); no list is stored
+REACHES = (1, 2)     # grid cells per support radius along an axis (run.cells_per_support)
 
 
 class Cells(NamedTuple):
@@ -58,6 +63,10 @@ class Cells(NamedTuple):
     py: bool
     pz: bool
     H2: float    # squared support radius (m^2), as Grid.H2
+    rx: int      # cells the walk visits on each side of the home cell along the axis: the reach R,
+    ry: int      # or 0 along an axis of one cell that is not periodic (the z axis of a 2D scene)
+    rz: int
+    spans: int   # cells the walk visits: (2 rx + 1)(2 ry + 1)(2 rz + 1)
 
 
 @njit(inline="always")
@@ -245,26 +254,28 @@ def _scan_range(store_all, i, lo, hi, x, xi, yi, zi, H2, period, periodic, nbr, 
 
 
 @njit(cache=True, inline="always")
-def _face_gap2(offset, xi, lo_face, hi_face):
-    """Squared distance from coordinate xi to the neighbouring cell at ``offset`` (-1, 0, +1), given
-    the faces of xi's own cell; 0 for the own cell."""
+def _face_gap2(offset, xi, lo_face, size):
+    """Squared distance from coordinate xi to the cell ``offset`` cells away from its own (whose
+    lower face is at lo_face, cells ``size`` wide) along one axis; 0 for the own cell. It grows with
+    |offset| (rounding is monotone), so a run of cells can stop at the first one out of reach."""
     zero = like(xi, 0.0)
     if offset < 0:
-        g = max(xi - lo_face, zero)
+        g = max(xi - (lo_face + like(xi, offset + 1) * size), zero)
     elif offset > 0:
-        g = max(hi_face - xi, zero)
+        g = max(lo_face + like(xi, offset) * size - xi, zero)
     else:
         return zero
     return g * g
 
 
 @njit(cache=True, inline="always")
-def neighbour_row(periodic, store_all, i, x, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell, period,
-                  H2, nbr, counts):
-    """Neighbour list of row i (shared by the CPU driver below and the CUDA kernel). Neighbour cells
-    are visited in a fixed order (z, y, x); a cell (or a whole row of cells) farther than H from the
-    particle is skipped, which removes about a quarter of the candidates. ``store_all``: how
-    _scan_range stores (true on the CPU, false on a GPU)."""
+def neighbour_row(periodic, store_all, i, x, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell, reach,
+                  period, H2, nbr, counts):
+    """Neighbour list of row i (shared by the CPU driver below and the CUDA kernel). The cells within
+    ``reach`` of row i's own are visited in a fixed order (z, y, x); a cell (or a whole row of cells)
+    farther than H from the particle is skipped, which removes about a quarter of the candidates
+    with cells of H and half with cells of H / 2. ``store_all``: how _scan_range stores (true on the
+    CPU, false on a GPU)."""
     nx, ny, nz = ncell[0], ncell[1], ncell[2]
     px, py, pz = period[0] > 0.0, period[1] > 0.0, period[2] > 0.0
     cap = nbr.shape[1] - 1  # the last column is the spare of _scan_range
@@ -275,39 +286,39 @@ def neighbour_row(periodic, store_all, i, x, contiguous, cell_begin, cell_end, o
     x_lo = origin[0] + like(xi, ix) * cell[0]
     y_lo = origin[1] + like(yi, iy) * cell[1]
     z_lo = origin[2] + like(zi, iz) * cell[2]
-    gx_left = _face_gap2(-1, xi, x_lo, x_lo + cell[0])
-    gx_right = _face_gap2(1, xi, x_lo, x_lo + cell[0])
     count = 0
-    for dz in range(-1, 2):
+    for dz in range(-reach, reach + 1):
         cz = iz + dz
         if cz < 0 or cz >= nz:
             if not pz:
                 continue
             cz = (cz + nz) % nz
-        gz = _face_gap2(dz, zi, z_lo, z_lo + cell[2])
+        gz = _face_gap2(dz, zi, z_lo, cell[2])
         if gz >= H2:
             continue
-        for dy in range(-1, 2):
+        for dy in range(-reach, reach + 1):
             cy = iy + dy
             if cy < 0 or cy >= ny:
                 if not py:
                     continue
                 cy = (cy + ny) % ny
-            gyz = gz + _face_gap2(dy, yi, y_lo, y_lo + cell[1])
+            gyz = gz + _face_gap2(dy, yi, y_lo, cell[1])
             if gyz >= H2:
                 continue
             row = (cz * ny + cy) * nx
-            use_left = gyz + gx_left < H2
-            use_right = gyz + gx_right < H2
-            if contiguous and (not px or (ix >= 1 and ix + 1 < nx)):
-                lo = max(ix - 1, 0) if use_left else ix
-                hi = min(ix + 1, nx - 1) if use_right else ix
+            left = 0  # cells of the row within reach on each side
+            while left < reach and gyz + _face_gap2(-(left + 1), xi, x_lo, cell[0]) < H2:
+                left += 1
+            right = 0
+            while right < reach and gyz + _face_gap2(right + 1, xi, x_lo, cell[0]) < H2:
+                right += 1
+            if contiguous and (not px or (ix >= reach and ix + reach < nx)):
+                lo = max(ix - left, 0)
+                hi = min(ix + right, nx - 1)
                 count = _scan_range(store_all, i, cell_begin[row + lo], cell_end[row + hi], x, xi, yi, zi,
                                     H2, period, periodic, nbr, count, cap)
             else:
-                for dx in range(-1, 2):
-                    if (dx < 0 and not use_left) or (dx > 0 and not use_right):
-                        continue
+                for dx in range(-left, right + 1):
                     cx = ix + dx
                     if cx < 0 or cx >= nx:
                         if not px:
@@ -320,18 +331,14 @@ def neighbour_row(periodic, store_all, i, x, contiguous, cell_begin, cell_end, o
 
 @njit(cache=True, inline="always")
 def home_cell(x, i, c):
-    """(ix, iy, iz, gap2 to the lower and upper x, y, z faces) of row i's cell: where the walk
-    starts. The same cell and gaps as neighbour_row computes, so the walk visits what the list holds."""
+    """(ix, iy, iz, xi, yi, zi, lower x, y, z faces) of row i's cell: where the walk starts. The same
+    cell and faces as neighbour_row computes, so the walk visits what the list holds."""
     xi, yi, zi = x[i, 0], x[i, 1], x[i, 2]
     ix = min(max(int((xi - c.ox) * c.ux), 0), c.nx - 1)
     iy = min(max(int((yi - c.oy) * c.uy), 0), c.ny - 1)
     iz = min(max(int((zi - c.oz) * c.uz), 0), c.nz - 1)
-    x_lo = c.ox + like(xi, ix) * c.sx
-    y_lo = c.oy + like(yi, iy) * c.sy
-    z_lo = c.oz + like(zi, iz) * c.sz
-    return (ix, iy, iz, _face_gap2(-1, xi, x_lo, x_lo + c.sx), _face_gap2(1, xi, x_lo, x_lo + c.sx),
-            _face_gap2(-1, yi, y_lo, y_lo + c.sy), _face_gap2(1, yi, y_lo, y_lo + c.sy),
-            _face_gap2(-1, zi, z_lo, z_lo + c.sz), _face_gap2(1, zi, z_lo, z_lo + c.sz))
+    return (ix, iy, iz, xi, yi, zi,
+            c.ox + like(xi, ix) * c.sx, c.oy + like(yi, iy) * c.sy, c.oz + like(zi, iz) * c.sz)
 
 
 @njit(cache=True, inline="always")
@@ -346,17 +353,19 @@ def _wrap(ci, n, periodic):
 
 @njit(cache=True, inline="always")
 def cell_span(s, home, c, cell_begin, cell_end):
-    """Rows [lo, hi) of the walk's s-th cell (s = 0..26: dz, dy, dx = s // 9 - 1, s // 3 % 3 - 1,
-    s % 3 - 1 around the home cell), or an empty span when that cell lies outside the grid or farther
-    than H from the particle (the pruning of neighbour_row, the same gap sums in the same order)."""
-    ix, iy, iz, gxl, gxr, gyl, gyr, gzl, gzr = home
-    dz = s // 9 - 1
-    dy = (s // 3) % 3 - 1
-    dx = s % 3 - 1
-    g = gzl if dz < 0 else (gzr if dz > 0 else like(gzl, 0.0))
-    g = g + (gyl if dy < 0 else (gyr if dy > 0 else like(gyl, 0.0)))
+    """Rows [lo, hi) of the walk's s-th cell (s = 0 .. c.spans - 1: z, then y, then x offsets from
+    -r to +r around the home cell), or an empty span when that cell lies outside the grid or farther
+    than H from the particle (the pruning of neighbour_row: the same gap sums in the same order; a
+    row that neighbour_row skips has a gap sum at least as large in every cell of it)."""
+    ix, iy, iz, xi, yi, zi, x_lo, y_lo, z_lo = home
+    wx = 2 * c.rx + 1
+    wy = 2 * c.ry + 1
+    dz = s // (wx * wy) - c.rz
+    dy = (s // wx) % wy - c.ry
+    dx = s % wx - c.rx
+    g = _face_gap2(dz, zi, z_lo, c.sz) + _face_gap2(dy, yi, y_lo, c.sy)
     if dx != 0:
-        g = g + (gxl if dx < 0 else gxr)
+        g = g + _face_gap2(dx, xi, x_lo, c.sx)
     if g >= c.H2:
         return 0, 0
     cz = _wrap(iz + dz, c.nz, c.pz)
@@ -370,31 +379,32 @@ def cell_span(s, home, c, cell_begin, cell_end):
 
 @literal_dispatch(1)
 @njit(cache=True, parallel=True)
-def _build_neighbours(periodic, x, n_query, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell, period,
-                      H2, nbr, counts):
+def _build_neighbours(periodic, x, n_query, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell, reach,
+                      period, H2, nbr, counts):
     """Neighbour lists of rows 0..n_query-1 (neighbour_row)."""
     literally(periodic)
     for i in prange(n_query):
-        neighbour_row(periodic, True, i, x, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell, period,
-                      H2, nbr, counts)
+        neighbour_row(periodic, True, i, x, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell, reach,
+                      period, H2, nbr, counts)
 
 
 @literal_dispatch(1)
 @njit(cache=True, parallel=True)
-def _build_neighbour_rows(periodic, x, rows, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell, period,
-                          H2, nbr, counts):
+def _build_neighbour_rows(periodic, x, rows, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell, reach,
+                          period, H2, nbr, counts):
     """Neighbour lists of the rows ``rows`` only (neighbour_row); the other rows' lists are left as
     they are (a peer lists its interior rows while the ghosts travel, the boundary rows after)."""
     literally(periodic)
     for k in prange(rows.shape[0]):
         neighbour_row(periodic, True, rows[k], x, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell,
-                      period, H2, nbr, counts)
+                      reach, period, H2, nbr, counts)
 
 
 class Grid:
     """Global uniform grid plus the per-step sort and neighbour list of one process.
 
-    origin (3,) m and cell (3,) m define the cells; ncell (3,) their number per axis; period (3,) is
+    origin (3,) m and cell (3,) m define the cells, H / reach wide (``reach``: grid.REACHES, cells per
+    support radius along an axis); ncell (3,) their number per axis; period (3,) is
     the period length along periodic axes and 0 elsewhere. After ``bin``, ``cell_begin`` and
     ``cell_end`` (ncells,) int64 hold the rows of every cell: owned rows (the first n_owned) and
     ghost rows (after them) are each sorted by (cell, id); ``nbr`` (n, capacity + 1) int32 (a spare column) and ``counts`` (n,)
@@ -402,24 +412,27 @@ class Grid:
     neighbours than the capacity.
     """
 
-    def __init__(self, lo, hi, H, periodic, dtype, capacity=64):
+    def __init__(self, lo, hi, H, periodic, dtype, *, reach, capacity=64):
+        if reach not in REACHES:
+            raise ValueError(f"grid reach must be one of {REACHES} cells per support radius, got {reach!r}")
         lo = np.asarray(lo, dtype=np.float64)
         hi = np.asarray(hi, dtype=np.float64)
-        ncell = np.maximum(np.floor((hi - lo) / H).astype(np.int64), 1)
+        ncell = np.ones(3, dtype=np.int64)
         cell = np.empty(3)
         period = np.zeros(3)
         for d in range(3):
             L = hi[d] - lo[d]
             if periodic[d]:
-                if ncell[d] < 3:
+                if math.floor(L / H) < 3:
                     raise ValueError(f"periodic axis {'xyz'[d]} is {L:g} m long: it must hold at least 3 "
                                      f"support radii ({3 * H:g} m)")
+                ncell[d] = reach * int(math.floor(L / H))
                 cell[d] = L / ncell[d]
                 period[d] = L
             else:
-                # cells of exactly H; one more cell so that hi itself is covered
-                ncell[d] = max(int(math.floor(L / H)) + 1, 1)
-                cell[d] = H
+                # cells of exactly H / reach; one more cell so that hi itself is covered
+                ncell[d] = max(int(math.floor(reach * L / H)) + 1, 1)
+                cell[d] = H / reach
         self.dtype = np.dtype(dtype)
         self.origin = lo.astype(self.dtype)
         self.cell = cell.astype(self.dtype)
@@ -428,9 +441,12 @@ class Grid:
         self.period = period.astype(self.dtype)
         self.periodic = bool(np.any(period > 0))
         self.H2 = self.dtype.type(H * H)
+        self.reach = int(reach)
         f = self.dtype.type
+        r = [0 if self.ncell[d] == 1 and period[d] == 0 else self.reach for d in range(3)]
         self.cells = Cells(*(f(v) for v in self.origin), *(f(v) for v in self.cell), *(f(v) for v in self.inv_cell),
-                           *(int(n) for n in self.ncell), *(bool(p > 0) for p in self.period), self.H2)
+                           *(int(n) for n in self.ncell), *(bool(p > 0) for p in self.period), self.H2,
+                           *r, math.prod(2 * a + 1 for a in r))
         self.ncells = int(np.prod(self.ncell))
         self.bin_start = np.zeros(2 * self.ncells + 1, dtype=np.int64)
         self.cell_begin = np.zeros(self.ncells, dtype=np.int64)
@@ -509,7 +525,7 @@ class Grid:
             self.counts = np.empty(n_query, dtype=np.int32)
         while True:
             args = (self.contiguous, self.cell_begin, self.cell_end, self.origin, self.cell, self.inv_cell,
-                    self.ncell, self.period, self.H2, self.nbr, self.counts)
+                    self.ncell, self.reach, self.period, self.H2, self.nbr, self.counts)
             if rows is None:
                 _build_neighbours(int(self.periodic), x, n_query, *args)
                 most = int(self.counts[:n_query].max()) if n_query else 0

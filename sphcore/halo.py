@@ -251,7 +251,7 @@ class PeerHalo:
         # summed in rank order on every peer, so that every peer gets the same bits and the same cuts
         total = {k: sum(received[q][k] for q in range(self.dec.n_peers)) for k in hist}
         new = type(self.dec).from_histograms(ncell, self.dec.dims, [total[f"h{a}"] for a in range(3)],
-                                             self.dec.periodic)
+                                             self.dec.periodic, reach=self.dec.reach)
         owner = new.owner(cells)
         own = s.carried_arrays(n)
         for q in self.others:

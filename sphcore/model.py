@@ -42,7 +42,7 @@ def make_grid(scene, walls, H, dtype):
         if not periodic[d] and d < scene.dim:
             lo[d] -= H
             hi[d] += H
-    return grid_mod.Grid(lo, hi, H, periodic, dtype)
+    return grid_mod.Grid(lo, hi, H, periodic, dtype, reach=scene.run.cells_per_support)
 
 
 class Model:

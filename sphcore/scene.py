@@ -299,9 +299,13 @@ class Run:
     precision: str = spec("auto", "floating point precision; auto = f64 on the CPU, f32 on a GPU (--precision "
                                   "overrides)", choices=("auto", "f32", "f64"), control=COMPILED)
     neighbours: str = spec("lists", "how the neighbour passes find neighbours: lists (built once per step, "
-                                    "~256 B per particle; faster on the CPU) or walk (each pass walks the 27 "
-                                    "grid cells; no per-particle lists). Same neighbours, same order",
+                                    "~256 B per particle; faster on the CPU) or walk (each pass walks the "
+                                    "grid cells around the particle; no per-particle lists). Same neighbours, same order",
                            choices=("lists", "walk"), control=COMPILED)
+    cells_per_support: int = spec(2, "grid cells per support radius along each axis: 2 (cells of H/2) halves the "
+                                     "candidates every neighbour search tests, for 8x the cells (32 B each); 1 "
+                                     "(cells of H) when memory is short. Same neighbours; the order of the sums, so "
+                                     "the rounding, differs between the two", choices=(1, 2), control=AT_START)
     log_every: int = spec(0, "steps between progress log lines when not on a terminal (0 = every 5 % of the run)",
                           range=(0, 10**9), control=AT_START)
     max_density_ratio: float = spec(3.0, "stop with a diagnostic if some rho/rho0 exceeds this",
@@ -1299,7 +1303,7 @@ def resource_estimate(s: Scene, backend: str = "cpu") -> dict:
     per_block = [block_estimate(b, s.dim, dx) for b in s.fluid.blocks]
     particles = sum(per_block)
     H = s.sph.support * dx
-    cells = math.prod(max(e, 0.0) / H + 3.0 for e in _domain_extent(s)[: s.dim])
+    cells = math.prod(max(e, 0.0) * s.run.cells_per_support / H + 3.0 for e in _domain_extent(s)[: s.dim])
     return {"per_block": per_block, "particles": particles, "cells": cells,
             "memory": particles * bytes_per_particle(s, backend) + cells * BYTES_PER_CELL}
 

@@ -51,7 +51,7 @@ CHOICES = MappingProxyType({
     "integrator": (tuple(int(g) for g in Integrator), int(Integrator.SYMPLECTIC_EULER), "time integrator"),
     "periodic": ((0, 1), 0, "1 if any axis is periodic: minimum-image separations and wrapping"),
     "neighbours": ((NEIGHBOUR_LISTS, CELL_WALK), NEIGHBOUR_LISTS,
-                   "how a neighbour pass finds j: the stored lists, or a walk of the 27 cells (grid.py)"),
+                   "how a neighbour pass finds j: the stored lists, or a walk of the grid cells around i (grid.py)"),
     "pair_gradients": ((0, 1), 0, "DFSPH: 1 if the density pass stores grad W_ij per list entry (grad_w) and the "
                                   "DFSPH passes read it (lists on the CPU: pairs.gradient)"),
     "continuity": ((0, 1), 0, "1 if the density is carried by the continuity equation (sph.density)"),

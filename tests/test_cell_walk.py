@@ -32,7 +32,7 @@ def walked(x, n_query, cells, cell_begin, cell_end, prm, out, found):
     for i in range(n_query):
         c = 0
         home = walk_start(CELL_WALK, x, i, cells)
-        for span in range(spans(CELL_WALK)):
+        for span in range(spans(CELL_WALK, cells)):
             k_lo, k_hi = span_rows(CELL_WALK, span, home, i, found, cells, cell_begin, cell_end)
             for k in range(k_lo, k_hi):
                 j, dx, dy, dz, r2, inside = candidate(CELL_WALK, 1, x, out, i, k, prm, cells)
@@ -64,26 +64,29 @@ def random_state(x, rng, n_owned=None):
 
 
 @pytest.mark.parametrize("dim", [2, 3])
-def test_walk_visits_the_list_in_order_random_box(dim):
+@pytest.mark.parametrize("reach", [1, 2])
+def test_walk_visits_the_list_in_order_random_box(dim, reach):
     rng = np.random.default_rng(11)
     lo, hi = np.zeros(3), np.array([1.3, 0.7, 0.45 if dim == 3 else 0.0])
     H = 0.13
-    grid = Grid(lo - H, hi + H, H, (False, False, False), np.float64)
+    grid = Grid(lo - H, hi + H, H, (False, False, False), np.float64, reach=reach)
     assert check_walk_equals_lists(grid, random_state(rng.uniform(lo, hi, size=(700, 3)), rng)) > 0
 
 
-def test_walk_visits_the_list_in_order_on_cell_faces_and_corners():
+@pytest.mark.parametrize("reach", [1, 2])
+def test_walk_visits_the_list_in_order_on_cell_faces_and_corners(reach):
     rng = np.random.default_rng(12)
     H = 0.1
     g = np.arange(0, 6) * H
     x = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
     x = np.concatenate([x, x[:50] + np.array([0.5 * H, 0.0, 0.0])])
-    grid = Grid(np.zeros(3), np.full(3, 5 * H), H, (False, False, False), np.float64)
+    grid = Grid(np.zeros(3), np.full(3, 5 * H), H, (False, False, False), np.float64, reach=reach)
     check_walk_equals_lists(grid, random_state(x, rng))
 
 
 @pytest.mark.parametrize("periodic", [(True, False, False), (True, True, True)])
-def test_walk_visits_the_list_in_order_on_periodic_axes(periodic):
+@pytest.mark.parametrize("reach", [1, 2])
+def test_walk_visits_the_list_in_order_on_periodic_axes(periodic, reach):
     rng = np.random.default_rng(13)
     L = np.array([1.0, 0.8, 0.6])
     H = 0.15
@@ -92,18 +95,19 @@ def test_walk_visits_the_list_in_order_on_periodic_axes(periodic):
         if not periodic[d]:
             lo[d] -= H
             hi[d] += H
-    grid = Grid(lo, hi, H, periodic, np.float64)
+    grid = Grid(lo, hi, H, periodic, np.float64, reach=reach)
     check_walk_equals_lists(grid, random_state(rng.uniform(0, L, size=(500, 3)), rng))
 
 
-def test_walk_visits_the_list_in_order_with_ghost_rows():
+@pytest.mark.parametrize("reach", [1, 2])
+def test_walk_visits_the_list_in_order_with_ghost_rows(reach):
     # Given a peer's rows: owned particles in the left half, ghosts (a slab beyond the cut) after them,
     # so the owned and ghost cells are not contiguous in memory (the list builder's other path)
     rng = np.random.default_rng(14)
     H = 0.15
     own = rng.uniform([0, 0, 0], [0.6, 0.9, 0.6], size=(500, 3))
     ghosts = rng.uniform([0.6, 0, 0], [0.6 + H, 0.9, 0.6], size=(120, 3))
-    grid = Grid(np.zeros(3) - H, np.array([1.2, 0.9, 0.6]) + H, H, (False, False, False), np.float64)
+    grid = Grid(np.zeros(3) - H, np.array([1.2, 0.9, 0.6]) + H, H, (False, False, False), np.float64, reach=reach)
     # the cut lies on a cell face: 0.6 - (-0.15) = 0.75 = 5 cells
     state = random_state(np.concatenate([own, ghosts]), rng, n_owned=500)
     check_walk_equals_lists(grid, state)

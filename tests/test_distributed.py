@@ -102,7 +102,7 @@ def test_balanced_cuts_are_the_best_cell_layer_cuts():
     rng = np.random.default_rng(3)
     for _ in range(50):
         hist = rng.integers(0, 100, size=12)
-        dec = Decomposition.from_histograms((12, 4, 4), (2, 1, 1), [hist, np.ones(4), np.ones(4)])
+        dec = Decomposition.from_histograms((12, 4, 4), (2, 1, 1), [hist, np.ones(4), np.ones(4)], reach=1)
         cut = dec.cuts[0][1]
         best = min(range(2, 11), key=lambda c: abs(hist[:c].sum() - hist.sum() / 2))
         assert abs(hist[:cut].sum() - hist.sum() / 2) == abs(hist[:best].sum() - hist.sum() / 2)

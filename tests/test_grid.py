@@ -28,19 +28,21 @@ def cell_key(grid, x):
 
 
 @pytest.mark.parametrize("dim", [2, 3])
-def test_random_particles_non_cubic_box(dim):
+@pytest.mark.parametrize("reach", [1, 2])
+def test_random_particles_non_cubic_box(dim, reach):
     # Given random particles in a box that is not a whole number of cells in any direction
     rng = np.random.default_rng(1)
     lo, hi = np.zeros(3), np.array([1.3, 0.7, 0.45 if dim == 3 else 0.0])
     x = rng.uniform(lo, hi, size=(600, 3))
     H = 0.13
-    grid = Grid(lo - H, hi + H, H, (False, False, False), np.float64)
+    grid = Grid(lo - H, hi + H, H, (False, False, False), np.float64, reach=reach)
     state = make_state(x, rng)
     # Then every list equals the brute-force set
     check_lists_match_oracle(grid, state, H)
 
 
-def test_particles_on_cell_faces_and_corners():
+@pytest.mark.parametrize("reach", [1, 2])
+def test_particles_on_cell_faces_and_corners(reach):
     rng = np.random.default_rng(2)
     H = 0.1
     lo = np.zeros(3)
@@ -48,12 +50,13 @@ def test_particles_on_cell_faces_and_corners():
     g = np.arange(0, 6) * H
     x = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
     x = np.concatenate([x, x[:50] + np.array([0.5 * H, 0.0, 0.0])])  # half-way points too
-    grid = Grid(lo, lo + 5 * H, H, (False, False, False), np.float64)
+    grid = Grid(lo, lo + 5 * H, H, (False, False, False), np.float64, reach=reach)
     check_lists_match_oracle(grid, make_state(x, rng), H)
 
 
 @pytest.mark.parametrize("periodic", [(True, False, False), (True, True, False), (True, True, True)])
-def test_periodic_axes_use_minimum_image(periodic):
+@pytest.mark.parametrize("reach", [1, 2])
+def test_periodic_axes_use_minimum_image(periodic, reach):
     rng = np.random.default_rng(3)
     L = np.array([1.0, 0.8, 0.6])
     H = 0.15  # 0.8 / 0.15 -> 5 cells of 0.16 along y: cells stretched to tile the period
@@ -63,16 +66,17 @@ def test_periodic_axes_use_minimum_image(periodic):
         if not periodic[d]:
             lo[d] -= H
             hi[d] += H
-    grid = Grid(lo, hi, H, periodic, np.float64)
+    grid = Grid(lo, hi, H, periodic, np.float64, reach=reach)
     period = tuple(L[d] if periodic[d] else 0.0 for d in range(3))
     check_lists_match_oracle(grid, make_state(x, rng), H, period)
 
 
-def test_rows_sorted_by_cell_then_id_and_lists_in_that_order():
+@pytest.mark.parametrize("reach", [1, 2])
+def test_rows_sorted_by_cell_then_id_and_lists_in_that_order(reach):
     rng = np.random.default_rng(4)
     x = rng.uniform(0, 1, size=(400, 3))
     H = 0.2
-    grid = Grid(np.zeros(3) - H, np.ones(3) + H, H, (False, False, False), np.float64)
+    grid = Grid(np.zeros(3) - H, np.ones(3) + H, H, (False, False, False), np.float64, reach=reach)
     state = make_state(x, rng)
     grid.bin(state)
     keys = cell_key(grid, state.x)
@@ -84,7 +88,8 @@ def test_rows_sorted_by_cell_then_id_and_lists_in_that_order():
         assert np.all(np.diff(js) > 0)
 
 
-def test_same_particles_in_any_input_order_give_identical_rows():
+@pytest.mark.parametrize("reach", [1, 2])
+def test_same_particles_in_any_input_order_give_identical_rows(reach):
     rng = np.random.default_rng(5)
     x = rng.uniform(0, 1, size=(300, 3))
     ids = np.arange(300)
@@ -92,7 +97,7 @@ def test_same_particles_in_any_input_order_give_identical_rows():
     results = []
     for perm in (np.arange(300), rng.permutation(300)):
         state = ParticleState.create(ids[perm], x[perm], np.zeros((300, 3)), np.ones(300), np.float64)
-        grid = Grid(np.zeros(3) - H, np.ones(3) + H, H, (False, False, False), np.float64)
+        grid = Grid(np.zeros(3) - H, np.ones(3) + H, H, (False, False, False), np.float64, reach=reach)
         grid.bin(state)
         results.append((state.id.copy(), grid.nbr[:, :].copy(), grid.counts.copy()))
     assert np.array_equal(results[0][0], results[1][0])
@@ -102,11 +107,12 @@ def test_same_particles_in_any_input_order_give_identical_rows():
         assert np.array_equal(results[0][1][i, :c], results[1][1][i, :c])
 
 
-def test_capacity_grows_for_crowded_particles():
+@pytest.mark.parametrize("reach", [1, 2])
+def test_capacity_grows_for_crowded_particles(reach):
     # 300 particles in a tiny cluster: every particle has 299 neighbours, more than the capacity
     rng = np.random.default_rng(6)
     x = 0.5 + rng.uniform(-0.01, 0.01, size=(300, 3))
-    grid = Grid(np.zeros(3), np.ones(3), 0.1, (False, False, False), np.float64, capacity=16)
+    grid = Grid(np.zeros(3), np.ones(3), 0.1, (False, False, False), np.float64, reach=reach, capacity=16)
     state = make_state(x, rng)
     most = grid.bin(state)
     assert most == 299
@@ -114,15 +120,16 @@ def test_capacity_grows_for_crowded_particles():
     assert np.all(grid.counts == 299)
 
 
-def test_lists_built_for_two_subsets_of_rows_equal_one_build_also_when_the_capacity_grows():
+@pytest.mark.parametrize("reach", [1, 2])
+def test_lists_built_for_two_subsets_of_rows_equal_one_build_also_when_the_capacity_grows(reach):
     # Given sparse particles and a dense cluster that overflows the capacity, sorted once
     rng = np.random.default_rng(7)
     x = np.concatenate([rng.uniform(0.0, 1.0, size=(400, 3)), 0.5 + rng.uniform(-0.01, 0.01, size=(40, 3))])
-    full = Grid(np.zeros(3), np.ones(3), 0.1, (False, False, False), np.float64, capacity=8)
+    full = Grid(np.zeros(3), np.ones(3), 0.1, (False, False, False), np.float64, reach=reach, capacity=8)
     state = make_state(x, rng)
     full.bin(state)
     # When another grid lists the sparse rows first (no growth), then the others (which grow it)
-    parts = Grid(np.zeros(3), np.ones(3), 0.1, (False, False, False), np.float64, capacity=8)
+    parts = Grid(np.zeros(3), np.ones(3), 0.1, (False, False, False), np.float64, reach=reach, capacity=8)
     parts.sort(state)
     crowded = full.counts > 8
     first, second = np.flatnonzero(~crowded), np.flatnonzero(crowded)
@@ -135,13 +142,15 @@ def test_lists_built_for_two_subsets_of_rows_equal_one_build_also_when_the_capac
         assert np.array_equal(parts.nbr[i, :parts.counts[i]], full.nbr[i, :full.counts[i]]), i
 
 
-def test_periodic_axis_needs_three_cells():
+@pytest.mark.parametrize("reach", [1, 2])
+def test_periodic_axis_needs_three_cells(reach):
     with pytest.raises(ValueError, match="at least 3 support radii"):
-        Grid(np.zeros(3), np.array([0.25, 1.0, 1.0]), 0.1, (True, False, False), np.float64)
+        Grid(np.zeros(3), np.array([0.25, 1.0, 1.0]), 0.1, (True, False, False), np.float64, reach=reach)
 
 
 @pytest.mark.parametrize("dims,periodic", [((2, 1, 1), (False, False, False)), ((2, 2, 1), (True, False, False))])
-def test_a_peer_with_ghost_rows_sees_the_same_neighbours_in_the_same_order(dims, periodic):
+@pytest.mark.parametrize("reach", [1, 2])
+def test_a_peer_with_ghost_rows_sees_the_same_neighbours_in_the_same_order(dims, periodic, reach):
     # Given random particles, one global grid, and a decomposition into blocks of cells
     from sphcore.decomposition import Decomposition
     rng = np.random.default_rng(7)
@@ -155,11 +164,11 @@ def test_a_peer_with_ghost_rows_sees_the_same_neighbours_in_the_same_order(dims,
     x = rng.uniform(0, L, size=(800, 3))
     ids = rng.permutation(800).astype(np.int64)
     whole = ParticleState.create(ids, x, np.zeros((800, 3)), np.ones(800), np.float64)
-    g_all = Grid(lo, hi, H, periodic, np.float64)
+    g_all = Grid(lo, hi, H, periodic, np.float64, reach=reach)
     g_all.bin(whole)
     reference = {int(whole.id[i]): whole.id[g_all.nbr[i, : g_all.counts[i]]].tolist() for i in range(800)}
     cells = np.clip(np.floor((x - g_all.origin) * g_all.inv_cell).astype(int), 0, g_all.ncell - 1)
-    dec = Decomposition.uniform(tuple(g_all.ncell), dims, periodic)
+    dec = Decomposition.uniform(tuple(g_all.ncell), dims, periodic, reach=reach)
     owner = dec.owner(cells)
     for r in range(dec.n_peers):
         # When a peer holds its own particles first and its ghosts (its halo cells) after them
@@ -168,7 +177,7 @@ def test_a_peer_with_ghost_rows_sees_the_same_neighbours_in_the_same_order(dims,
         rows = np.concatenate([own, rng.permutation(ghost)])
         peer = ParticleState.create(ids[rows], x[rows], np.zeros((len(rows), 3)), np.ones(len(rows)), np.float64)
         peer.n_owned = len(own)
-        g = Grid(lo, hi, H, periodic, np.float64)
+        g = Grid(lo, hi, H, periodic, np.float64, reach=reach)
         g.bin(peer)
         # Then owned rows come first and every owned particle has the single-process neighbours, in order
         assert set(peer.id[: peer.n_owned].tolist()) == set(ids[own].tolist())
@@ -177,7 +186,8 @@ def test_a_peer_with_ghost_rows_sees_the_same_neighbours_in_the_same_order(dims,
             assert got == reference[int(peer.id[i])]
 
 
-def test_sorting_the_ghosts_after_the_owned_rows_gives_the_order_of_one_sort():
+@pytest.mark.parametrize("reach", [1, 2])
+def test_sorting_the_ghosts_after_the_owned_rows_gives_the_order_of_one_sort(reach):
     # Given a peer's owned rows (in no order) and its ghost rows after them, as in exchange 1
     from sphcore.decomposition import Decomposition
     rng = np.random.default_rng(8)
@@ -185,9 +195,9 @@ def test_sorting_the_ghosts_after_the_owned_rows_gives_the_order_of_one_sort():
     lo, hi = np.full(3, -H), np.full(3, 1.0 + H)
     x = rng.uniform(0.0, 1.0, size=(900, 3))
     ids = rng.permutation(900).astype(np.int64)
-    probe = Grid(lo, hi, H, (False, False, False), np.float64)
+    probe = Grid(lo, hi, H, (False, False, False), np.float64, reach=reach)
     cells = probe.cells_of(x)
-    dec = Decomposition.uniform(tuple(probe.ncell), (2, 2, 1), (False, False, False))
+    dec = Decomposition.uniform(tuple(probe.ncell), (2, 2, 1), (False, False, False), reach=reach)
     own = rng.permutation(np.nonzero(dec.owner(cells) == 0)[0])
     ghost = rng.permutation(np.nonzero(dec.in_halo(cells, 0))[0])
     rows = np.concatenate([own, ghost])
@@ -201,9 +211,9 @@ def test_sorting_the_ghosts_after_the_owned_rows_gives_the_order_of_one_sort():
 
     # When one grid sorts every row at once, and another the owned rows first and the ghosts after
     whole = state(rows, len(own))
-    once = Grid(lo, hi, H, (False, False, False), np.float64)
+    once = Grid(lo, hi, H, (False, False, False), np.float64, reach=reach)
     once.sort(whole)
-    apart = Grid(lo, hi, H, (False, False, False), np.float64)
+    apart = Grid(lo, hi, H, (False, False, False), np.float64, reach=reach)
     owned = state(own, len(own))
     apart.sort(owned)
     first = apart.last_permutation.copy()

@@ -358,12 +358,13 @@ def _zone_kernel():
     zone_code = _device(decomposition.zone_code)
 
     @cuda.jit
-    def zone(x, n, origin, inv_cell, ncell, rank, cuts, dims, boxes, periodic, owner, mask, flag):
+    def zone(x, n, origin, inv_cell, ncell, rank, cuts, dims, boxes, periodic, reach, owner, mask, flag):
         """decomposition.zone_code of owned row i; flag[i] = 1 where it leaves or is a neighbour's ghost."""
         i = cuda.grid(1)
         if i < n:
             o, b = zone_code(cell_index(x, i, 0, origin, inv_cell, ncell), cell_index(x, i, 1, origin, inv_cell, ncell),
-                             cell_index(x, i, 2, origin, inv_cell, ncell), cuts, dims, boxes, ncell, periodic)
+                             cell_index(x, i, 2, origin, inv_cell, ncell), cuts, dims, boxes, ncell, periodic,
+                             reach)
             owner[i] = o
             mask[i] = b
             flag[i] = 1 if (o != rank or b != 0) else 0
@@ -394,12 +395,12 @@ def _neighbour_kernel(periodic):
     row = _device(grid_mod.neighbour_row)
 
     @cuda.jit
-    def neighbours(n_query, x, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell, period, H2, nbr,
-                   counts):
+    def neighbours(n_query, x, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell, reach, period, H2,
+                   nbr, counts):
         i = cuda.grid(1)
         if i < n_query:
-            row(periodic, False, i, x, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell, period, H2,
-                nbr, counts)
+            row(periodic, False, i, x, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell, reach, period,
+                H2, nbr, counts)
     return neighbours
 
 
@@ -524,8 +525,8 @@ class DeviceGrid:
         kernel = _neighbour_kernel(int(self.periodic))
         while True:
             kernel[blocks(n_query), BLOCK](n_query, x, self.contiguous, self.cell_begin, self.cell_end,
-                                           self.d_origin, self.d_cell, self.d_inv_cell, self.d_ncell, self.d_period,
-                                           self.host.H2, self.d_nbr, self.d_counts)
+                                           self.d_origin, self.d_cell, self.d_inv_cell, self.d_ncell, self.host.reach,
+                                           self.d_period, self.host.H2, self.d_nbr, self.d_counts)
             _max_int[blocks(n_query), BLOCK](self.d_counts, n_query, self.flags, 1)
             most = self._read_flags()
             if most <= self.capacity:
@@ -695,11 +696,12 @@ class CudaStages(Engine):
         self.push_if_needed()
         n = self.d.n_owned
         g = self.grid
-        cuts, dims, boxes, _, periodic = [self.traffic.up(t) for t in decomposition.zone_tables(dec, rank, neighbours)]
+        *tables, reach = decomposition.zone_tables(dec, rank, neighbours)
+        cuts, dims, boxes, _, periodic = [self.traffic.up(t) for t in tables]
         owner, mask, flags = (cuda.device_array(max(n, 1), dtype=np.int64) for _ in range(3))
         if n:
             _zone_kernel()[blocks(n), BLOCK](self.d.x, n, g.d_origin, g.d_inv_cell, g.d_ncell, rank, cuts, dims,
-                                             boxes, periodic, owner, mask, flags)
+                                             boxes, periodic, reach, owner, mask, flags)
         return owner, mask, flags
 
     def zone_rows(self, dec, rank: int, neighbours) -> tuple:
@@ -851,7 +853,7 @@ def argument_types(dtype: str) -> dict:
 
     f = types.float32 if dtype == "f32" else types.float64
     real = np.float32 if dtype == "f32" else np.float64
-    cells = grid_mod.Cells(*(real(1.0),) * 9, 1, 1, 1, False, False, False, real(1.0))
+    cells = grid_mod.Cells(*(real(1.0),) * 9, 1, 1, 1, False, False, False, real(1.0), 1, 1, 1, 27)
     prm = example_params(dtype)
     by_kind = {"params": numba.typeof(prm), "float": f, "int": types.int64, "bool": types.boolean, "vec": types.Array(f, 2, "C"),
                "row": types.Array(f, 1, "C"), "nbr": types.Array(types.int32, 2, "F"),

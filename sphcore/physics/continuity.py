@@ -77,7 +77,7 @@ def diffusion_row(kernel, eos, periodic, neighbours, prm, i, x, m, rho, nbr, cou
     rho_i = rho[i]
     diff = like(rho_i, 0.0)
     home = walk_start(neighbours, x, i, cells)
-    for span in range(spans(neighbours)):
+    for span in range(spans(neighbours, cells)):
         k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
         for k in range(k_lo, k_hi):
             j, dx, dy, dz, r2, inside = candidate(neighbours, periodic, x, nbr, i, k, prm, cells)

@@ -41,7 +41,7 @@ def density_row(kernel, eos, periodic, neighbours, pair_gradients, continuity, p
     rate = like(rho_i, 0.0)
     found = 0  # neighbours of i (the step's neighbour statistics)
     home = walk_start(neighbours, x, i, cells)
-    for span in range(spans(neighbours)):
+    for span in range(spans(neighbours, cells)):
         k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
         for k in range(k_lo, k_hi):
             j, dx, dy, dz, r2, inside = candidate(neighbours, periodic, x, nbr, i, k, prm, cells)

@@ -170,7 +170,7 @@ def dfsph_factor_row(kernel, periodic, neighbours, pair_gradients, prm, i, x, m,
     gz = like(prm.H, 0.0)
     sum_sq = like(prm.H, 0.0)
     home = walk_start(neighbours, x, i, cells)
-    for span in range(spans(neighbours)):
+    for span in range(spans(neighbours, cells)):
         k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
         for k in range(k_lo, k_hi):
             j, wx, wy, wz, inside = gradient(neighbours, pair_gradients, kernel, periodic, x, nbr, grad_w, i, k, prm,
@@ -203,7 +203,7 @@ def dfsph_source_row(kernel, periodic, neighbours, pair_gradients, divergence, p
     rate = wgrad[i, 0] * v[i, 0] + wgrad[i, 1] * v[i, 1] + wgrad[i, 2] * v[i, 2]
     found = 0  # neighbours of i
     home = walk_start(neighbours, x, i, cells)
-    for span in range(spans(neighbours)):
+    for span in range(spans(neighbours, cells)):
         k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
         for k in range(k_lo, k_hi):
             j, wx, wy, wz, inside = gradient(neighbours, pair_gradients, kernel, periodic, x, nbr, grad_w, i, k, prm,
@@ -232,7 +232,7 @@ def dfsph_update_row(kernel, periodic, neighbours, pair_gradients, prm, i, x, m,
     sy = l_i * wgrad[i, 1]
     sz = l_i * wgrad[i, 2]
     home = walk_start(neighbours, x, i, cells)
-    for span in range(spans(neighbours)):
+    for span in range(spans(neighbours, cells)):
         k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
         for k in range(k_lo, k_hi):
             j, wx, wy, wz, inside = gradient(neighbours, pair_gradients, kernel, periodic, x, nbr, grad_w, i, k, prm,

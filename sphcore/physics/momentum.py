@@ -29,7 +29,7 @@ def acceleration_row(kernel, viscosity, periodic, neighbours, prm, i, x, v, m, r
     p_i = p[i]
     p_rho2_i = p_i / (rho_i * rho_i)
     home = walk_start(neighbours, x, i, cells)
-    for span in range(spans(neighbours)):
+    for span in range(spans(neighbours, cells)):
         k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
         for k in range(k_lo, k_hi):
             j, dx, dy, dz, r2, inside = candidate(neighbours, periodic, x, nbr, i, k, prm, cells)

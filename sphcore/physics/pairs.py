@@ -4,7 +4,7 @@ x_ij = x_i - x_j of a pair (minimum image on periodic axes, grid.minimum_image).
 Every pass loops the same way, whichever the compile-time choice ``neighbours`` (stages.CHOICES):
 
     home = walk_start(neighbours, x, i, cells)
-    for s in range(spans(neighbours)):
+    for s in range(spans(neighbours, cells)):
         lo, hi = span_rows(neighbours, s, home, i, counts, cells, cell_begin, cell_end)
         for k in range(lo, hi):
             j, dx, dy, dz, r2, inside = candidate(neighbours, periodic, x, nbr, i, k, prm, cells)
@@ -12,7 +12,8 @@ Every pass loops the same way, whichever the compile-time choice ``neighbours`` 
                 continue
 
 With ``NEIGHBOUR_LISTS`` there is one span, row i's list (k indexes it); with ``CELL_WALK`` there
-are 27, the cells around i's own (grid.cell_span; k is the row itself) and a candidate counts when
+are ``cells.spans``, the cells around i's own (27, or 125 with cells of H / 2: grid.cell_span; k is
+the row itself) and a candidate counts when
 |x_ij|^2 < H^2 and j != i, the test the list builder applies. Both visit the same j in the same order.
 
 A pass that needs only the kernel gradient grad W_ij of each pair (the DFSPH solver's passes, a
@@ -29,7 +30,7 @@ import math
 
 from numba import njit
 
-from sphcore.grid import CELL_WALK, SPANS, cell_span, home_cell, minimum_image
+from sphcore.grid import CELL_WALK, cell_span, home_cell, minimum_image
 from sphcore.physics.kernels import dw_dr_over_r
 from sphcore.physics.real import like
 
@@ -52,17 +53,18 @@ def separation(periodic, x, i, j, prm):
 
 @njit(cache=True, inline="always")
 def walk_start(neighbours, x, i, cells):
-    """Row i's home cell and face gaps for the walk (grid.home_cell); a placeholder for lists."""
+    """Row i's home cell, position and cell faces for the walk (grid.home_cell); a placeholder for
+    lists."""
     if neighbours == CELL_WALK:
         return home_cell(x, i, cells)
-    z = like(x, 0.0)  # the gaps' type (grid._face_gap2)
+    z = like(x, 0.0)  # the positions' type
     return 0, 0, 0, z, z, z, z, z, z
 
 
 @njit(cache=True, inline="always")
-def spans(neighbours):
-    """The number of row ranges a pass visits: 27 cells, or one list."""
-    return SPANS if neighbours == CELL_WALK else 1
+def spans(neighbours, cells):
+    """The number of row ranges a pass visits: the walk's cells (cells.spans), or one list."""
+    return cells.spans if neighbours == CELL_WALK else 1
 
 
 @njit(cache=True, inline="always")

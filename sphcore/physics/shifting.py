@@ -47,7 +47,7 @@ def shifting_row(kernel, periodic, neighbours, add, prm, i, x, v, m, rho, nbr, c
     gz = like(prm.H, 0.0)
     c = m[i] / prm.rho0 * prm.w0
     home = walk_start(neighbours, x, i, cells)
-    for span in range(spans(neighbours)):
+    for span in range(spans(neighbours, cells)):
         k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
         for k in range(k_lo, k_hi):
             j, dx, dy, dz, r2, inside = candidate(neighbours, periodic, x, nbr, i, k, prm, cells)

@@ -45,7 +45,7 @@ def surface_tension_row(kernel, periodic, neighbours, prm, i, x, m, rho, nbr, co
     gz = like(prm.H, 0.0)
     lap_c = like(prm.H, 0.0)
     home = walk_start(neighbours, x, i, cells)
-    for span in range(spans(neighbours)):
+    for span in range(spans(neighbours, cells)):
         k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
         for k in range(k_lo, k_hi):
             j, dx, dy, dz, r2, inside = candidate(neighbours, periodic, x, nbr, i, k, prm, cells)

@@ -35,7 +35,7 @@ def vorticity_row(kernel, periodic, neighbours, prm, i, x, v, m, rho, nbr, count
     oy = like(prm.H, 0.0)
     oz = like(prm.H, 0.0)
     home = walk_start(neighbours, x, i, cells)
-    for span in range(spans(neighbours)):
+    for span in range(spans(neighbours, cells)):
         k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
         for k in range(k_lo, k_hi):
             j, dx, dy, dz, r2, inside = candidate(neighbours, periodic, x, nbr, i, k, prm, cells)
@@ -63,7 +63,7 @@ def confinement_row(kernel, periodic, neighbours, prm, i, x, m, rho, omega, nbr,
     ey = like(prm.H, 0.0)
     ez = like(prm.H, 0.0)
     home = walk_start(neighbours, x, i, cells)
-    for span in range(spans(neighbours)):
+    for span in range(spans(neighbours, cells)):
         k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
         for k in range(k_lo, k_hi):
             j, dx, dy, dz, r2, inside = candidate(neighbours, periodic, x, nbr, i, k, prm, cells)

@@ -29,7 +29,7 @@ def xsph_row(kernel, periodic, neighbours, prm, i, x, v, m, rho, nbr, counts, ce
     sy = like(prm.H, 0.0)
     sz = like(prm.H, 0.0)
     home = walk_start(neighbours, x, i, cells)
-    for span in range(spans(neighbours)):
+    for span in range(spans(neighbours, cells)):
         k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
         for k in range(k_lo, k_hi):
             j, dx, dy, dz, r2, inside = candidate(neighbours, periodic, x, nbr, i, k, prm, cells)
