@@ -4,11 +4,11 @@
 #      checked against the tolerances of tests/test_cuda.py;
 #   2. 200 steps on the GPU against 200 on the CPU (tests/test_cuda.py::test_long_gpu_run...);
 #   3. the GPU benchmark (sph bench --backend cuda): float32 with lists and with the cell walk, float64
-#      with lists, STEPS steps (default 100) per case; then float32 at the smallest size with cells of H
-#      (run.cells_per_support = 1) against the default cells of H / 2 measured just before;
+#      with lists, STEPS steps (default 100) per case; then float32 at the smallest size with the other
+#      cell size (run.cells_per_support): lists with cells of H, the walk with cells of H / 2 (the
+#      defaults are H / 2 with lists, H with the walk, measured just before);
 #   4. what a kernel launch costs the host (scripts/investigations/launch_overhead.py);
-#   5. the largest run that fits (BIG particles, default 300 M, walking, with cells of H: the setting
-#      for runs short of memory; BIG=0 skips it);
+#   5. the largest run that fits (BIG particles, default 300 M, walking; BIG=0 skips it);
 #   6. two peer processes sharing the GPU against one, at PEERS_SIZE particles (default 4 M; 0 skips),
 #      and the two peers again with decomposition.overlap = false (what overlapping the halo gains);
 #   7. the same scene on all CPU cores for the ratio (CPU_BENCH=0 skips it).
@@ -17,7 +17,7 @@
 #
 # About 9 minutes on one H200 with 16 cores (2026-12-04; the overlap-off run of 6 was added later and
 # is bounded to 2 minutes: set PEERS_SIZE=0 if time is short). PY selects the interpreter (default:
-# .venv/bin/python if present, else python3). Writes OUTDIR/log.txt, parity.json, gpu.json, gpu_cells_h.json, gpu_big.json,
+# .venv/bin/python if present, else python3). Writes OUTDIR/log.txt, parity.json, gpu.json, gpu_cells_lists.json, gpu_cells_walk.json, gpu_big.json,
 # gpu_peers.json, gpu_peers_no_overlap.json and cpu.json; every step runs even when one before failed, and the exit status is 1
 # if any failed.
 set -u
@@ -90,21 +90,23 @@ SPH_CACHE_DIR="$TMP/cache_bench" timeout 100 $PY -m launch.cli bench --backend c
     --precisions f64 --neighbours lists --steps ${STEPS:-100} --json "$OUTDIR/gpu_f64.json" >>"$LOG" 2>&1 \
     || status=1
 
-say "cells of H (run.cells_per_support = 1) against the default H / 2: float32, lists and walking"
-{ cat configs/dam_break.toml; printf '\n[run]\ncells_per_support = 1\n'; } > "$TMP/cells_h.toml"
+say "the other cell size: lists with cells of H, the walk with cells of H / 2 (float32)"
 SMALLEST=$(echo $SIZES | tr ' ' '\n' | sort -n | head -n 1)
-SPH_CACHE_DIR="$TMP/cache_bench" timeout 60 $PY -m launch.cli bench --backend cuda --sizes $SMALLEST \
-    --precisions f32 --neighbours lists walk --steps ${STEPS:-100} --config "$TMP/cells_h.toml" \
-    --json "$OUTDIR/gpu_cells_h.json" >>"$LOG" 2>&1 || status=1
+for pair in "lists 1" "walk 2"; do
+    set -- $pair
+    { cat configs/dam_break.toml; printf '\n[run]\ncells_per_support = %s\n' "$2"; } > "$TMP/cells_$2.toml"
+    SPH_CACHE_DIR="$TMP/cache_bench" timeout 45 $PY -m launch.cli bench --backend cuda --sizes $SMALLEST \
+        --precisions f32 --neighbours "$1" --steps ${STEPS:-100} --config "$TMP/cells_$2.toml" \
+        --json "$OUTDIR/gpu_cells_$1.json" >>"$LOG" 2>&1 || status=1
+done
 
 say "what a kernel launch costs the host"
 timeout 60 $PY scripts/investigations/launch_overhead.py >>"$LOG" 2>&1 || status=1
 
 if [ "${BIG:-300000000}" != 0 ]; then
-    say "GPU memory: ${BIG:-300000000} particles stepping, f32, cell walk, cells of H (device bytes per particle)"
+    say "GPU memory: ${BIG:-300000000} particles stepping, f32, cell walk (device bytes per particle)"
     SPH_CACHE_DIR="$TMP/cache_bench" timeout 150 $PY -m launch.cli bench --backend cuda --sizes ${BIG:-300000000} \
-        --precisions f32 --neighbours walk --steps 2 --config "$TMP/cells_h.toml" \
-        --json "$OUTDIR/gpu_big.json" >>"$LOG" 2>&1 || status=1
+        --precisions f32 --neighbours walk --steps 2 --json "$OUTDIR/gpu_big.json" >>"$LOG" 2>&1 || status=1
 fi
 
 if [ "${PEERS_SIZE:-4000000}" != 0 ]; then

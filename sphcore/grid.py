@@ -112,15 +112,17 @@ def compute_cell_coords(x, origin, inv_cell, ncell, out):
 
 
 @njit(cache=True)
-def _scatter_by_key(keys, cell_start, perm):
-    """Histogram, exclusive prefix sum and stable scatter (serial: O(n), memory-bound)."""
+def _scatter_by_key(keys, cell_start, perm, fill):
+    """Histogram, exclusive prefix sum and stable scatter (serial: O(n + bins), memory-bound);
+    ``fill`` (bins,) is scratch, kept by the Grid (a fresh copy of the bins a step costs more than
+    the scatter with cells of H / 2)."""
     ncells = cell_start.shape[0] - 1
     cell_start[:] = 0
     for i in range(keys.shape[0]):
         cell_start[keys[i] + 1] += 1
     for c in range(ncells):
         cell_start[c + 1] += cell_start[c]
-    fill = cell_start[:-1].copy()
+    fill[:] = cell_start[:-1]
     for i in range(keys.shape[0]):
         k = keys[i]
         perm[fill[k]] = i
@@ -128,10 +130,10 @@ def _scatter_by_key(keys, cell_start, perm):
 
 
 @njit(cache=True)
-def _scatter_ghosts(keys, n_owned, ncells, bin_start, perm):
+def _scatter_ghosts(keys, n_owned, ncells, bin_start, perm, fill):
     """The ghost rows' bins [ncells, 2 ncells) and their stable scatter into perm[n_owned:], after
     the owned rows' bins were filled by a sort of the owned rows alone (bin_start[ncells] = n_owned);
-    perm[:n_owned] is the identity (serial: O(ghosts + cells))."""
+    perm[:n_owned] is the identity (serial: O(ghosts + cells)); ``fill`` (>= ncells,) is scratch."""
     for c in range(ncells, 2 * ncells):
         bin_start[c + 1] = 0
     for i in range(n_owned, keys.shape[0]):
@@ -139,7 +141,7 @@ def _scatter_ghosts(keys, n_owned, ncells, bin_start, perm):
     bin_start[ncells] = n_owned
     for c in range(ncells, 2 * ncells):
         bin_start[c + 1] += bin_start[c]
-    fill = bin_start[ncells:2 * ncells].copy()
+    fill[:ncells] = bin_start[ncells:2 * ncells]
     for i in range(n_owned):
         perm[i] = i
     for i in range(n_owned, keys.shape[0]):
@@ -149,9 +151,14 @@ def _scatter_ghosts(keys, n_owned, ncells, bin_start, perm):
 
 
 @njit(cache=True, parallel=True)
-def _sort_ghost_cells_by_id(bin_start, ncells, perm, ids):
-    for c in prange(ncells, 2 * ncells):
-        sort_bin_row(c, bin_start, perm, ids)
+def _sort_bins_by_id(first, keys, bin_start, perm, ids):
+    """sort_bin_row of every non-empty bin holding rows perm[first:]: each bin is sorted by the
+    row that starts it (its key differs from the row before), so the work is O(rows), not O(bins)
+    (most bins are empty, the more so with cells of H / 2 and in a peer's global grid)."""
+    for k in prange(first, perm.shape[0]):
+        c = keys[perm[k]]
+        if k == first or keys[perm[k - 1]] != c:
+            sort_bin_row(c, bin_start, perm, ids)
 
 
 @njit(cache=True, inline="always")
@@ -169,16 +176,11 @@ def sort_bin_row(c, bin_start, perm, ids):
         perm[j + 1] = pk
 
 
-@njit(cache=True, parallel=True)
-def _sort_cells_by_id(bin_start, perm, ids):
-    for c in prange(bin_start.shape[0] - 1):
-        sort_bin_row(c, bin_start, perm, ids)
-
-
-def counting_sort(keys, ids, bin_start, perm):
-    """Permutation ordering rows by (key, id); fills ``bin_start`` (nbins + 1)."""
-    _scatter_by_key(keys, bin_start, perm)
-    _sort_cells_by_id(bin_start, perm, ids)
+def counting_sort(keys, ids, bin_start, perm, fill):
+    """Permutation ordering rows by (key, id); fills ``bin_start`` (nbins + 1); ``fill`` (nbins,)
+    is scratch."""
+    _scatter_by_key(keys, bin_start, perm, fill)
+    _sort_bins_by_id(0, keys, bin_start, perm, ids)
 
 
 @njit(cache=True, inline="always")
@@ -198,12 +200,12 @@ def cell_range_row(c, bin_start, ncells, cell_begin, cell_end):
     return 0
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _cell_ranges(bin_start, ncells, cell_begin, cell_end):
     """cell_begin/cell_end of every cell; returns the number of cells holding both owned and ghost
     rows (0 unless a migration was missed)."""
     mixed = 0
-    for c in range(ncells):
+    for c in prange(ncells):
         mixed += cell_range_row(c, bin_start, ncells, cell_begin, cell_end)
     return mixed
 
@@ -449,6 +451,7 @@ class Grid:
                            *r, math.prod(2 * a + 1 for a in r))
         self.ncells = int(np.prod(self.ncell))
         self.bin_start = np.zeros(2 * self.ncells + 1, dtype=np.int64)
+        self._fill = np.zeros(2 * self.ncells, dtype=np.int64)  # the counting sort's scratch
         self.cell_begin = np.zeros(self.ncells, dtype=np.int64)
         self.cell_end = np.zeros(self.ncells, dtype=np.int64)
         self.contiguous = True
@@ -471,7 +474,7 @@ class Grid:
         n = state.n
         self._ensure(n)
         compute_cell_keys(state.x, state.n_owned, self.origin, self.inv_cell, self.ncell, self._keys)
-        counting_sort(self._keys, state.id, self.bin_start, self._perm)
+        counting_sort(self._keys, state.id, self.bin_start, self._perm, self._fill)
         mixed = _cell_ranges(self.bin_start, self.ncells, self.cell_begin, self.cell_end)
         if mixed:
             raise RuntimeError(f"{mixed} grid cells hold both owned and ghost particles: a migration was missed")
@@ -491,8 +494,8 @@ class Grid:
             raise RuntimeError("sort_ghosts: the owned rows were not sorted alone first")
         self._ensure(n)
         compute_cell_keys(state.x, n_owned, self.origin, self.inv_cell, self.ncell, self._keys)
-        _scatter_ghosts(self._keys, n_owned, self.ncells, self.bin_start, self._perm)
-        _sort_ghost_cells_by_id(self.bin_start, self.ncells, self._perm, state.id)
+        _scatter_ghosts(self._keys, n_owned, self.ncells, self.bin_start, self._perm, self._fill)
+        _sort_bins_by_id(n_owned, self._keys, self.bin_start, self._perm, state.id)
         mixed = _cell_ranges(self.bin_start, self.ncells, self.cell_begin, self.cell_end)
         if mixed:
             raise RuntimeError(f"{mixed} grid cells hold both owned and ghost particles: a migration was missed")

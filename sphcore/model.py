@@ -19,7 +19,7 @@ from sphcore.choices import EOSES, INTEGRATORS, KERNELS, VISCOSITIES, Viscosity
 from sphcore.params import make_params
 from sphcore.physics.external import ramp_factor
 from sphcore.physics.kernels import kernel_constants, w
-from sphcore.scene import Scene, stores_pair_gradients
+from sphcore.scene import Scene, grid_reach, stores_pair_gradients
 from sphcore.solvers import SOLVERS
 
 DTYPES = {"f32": np.float32, "f64": np.float64}
@@ -42,7 +42,7 @@ def make_grid(scene, walls, H, dtype):
         if not periodic[d] and d < scene.dim:
             lo[d] -= H
             hi[d] += H
-    return grid_mod.Grid(lo, hi, H, periodic, dtype, reach=scene.run.cells_per_support)
+    return grid_mod.Grid(lo, hi, H, periodic, dtype, reach=grid_reach(scene))
 
 
 class Model:

@@ -300,12 +300,15 @@ class Run:
                                   "overrides)", choices=("auto", "f32", "f64"), control=COMPILED)
     neighbours: str = spec("lists", "how the neighbour passes find neighbours: lists (built once per step, "
                                     "~256 B per particle; faster on the CPU) or walk (each pass walks the "
-                                    "grid cells around the particle; no per-particle lists). Same neighbours, same order",
+                                    "grid cells around the particle; no per-particle lists). Same neighbours, "
+                                    "in the same order on the same grid (run.cells_per_support)",
                            choices=("lists", "walk"), control=COMPILED)
-    cells_per_support: int = spec(2, "grid cells per support radius along each axis: 2 (cells of H/2) halves the "
-                                     "candidates every neighbour search tests, for 8x the cells (32 B each); 1 "
-                                     "(cells of H) when memory is short. Same neighbours; the order of the sums, so "
-                                     "the rounding, differs between the two", choices=(1, 2), control=AT_START)
+    cells_per_support: int = spec(0, "grid cells per support radius along each axis: 2 (cells of H/2) halves the "
+                                     "candidates a neighbour search tests, for 8x the cells (32 B each); 1 (cells "
+                                     "of H); 0 = by run.neighbours: 2 with lists (built once a step), 1 with the "
+                                     "walk (whose every pass would visit 125 cells instead of 27). Same neighbours; "
+                                     "the order of the sums, so the rounding, differs between 1 and 2",
+                                  choices=(0, 1, 2), control=AT_START)
     log_every: int = spec(0, "steps between progress log lines when not on a terminal (0 = every 5 % of the run)",
                           range=(0, 10**9), control=AT_START)
     max_density_ratio: float = spec(3.0, "stop with a diagnostic if some rho/rho0 exceeds this",
@@ -1236,6 +1239,15 @@ HOST_BYTES_PER_PARTICLE = {"cpu": BYTES_PER_PARTICLE, "cuda": 160}
 PAIR_GRADIENT_BYTES = 3 * 65 * 8
 
 
+def grid_reach(s: Scene) -> int:
+    """Grid cells per support radius (run.cells_per_support; 0: 2 with lists, 1 with the walk). Cells
+    of H / 2 halve the candidates of the list build, once a step; a walk visits its cells in every
+    pass, and 5^3 of them cost it more than they save (docs/BENCHMARKS.md, "Grid cells of H / 2")."""
+    if s.run.cells_per_support:
+        return s.run.cells_per_support
+    return 2 if s.run.neighbours == "lists" else 1
+
+
 def stores_pair_gradients(s: Scene, backend: str = "cpu") -> bool:
     """Whether a run stores grad W_ij per list entry (model.pair_gradients): DFSPH, lists, the CPU."""
     return s.sph.solver == "dfsph" and s.run.neighbours == "lists" and backend == "cpu"
@@ -1303,7 +1315,7 @@ def resource_estimate(s: Scene, backend: str = "cpu") -> dict:
     per_block = [block_estimate(b, s.dim, dx) for b in s.fluid.blocks]
     particles = sum(per_block)
     H = s.sph.support * dx
-    cells = math.prod(max(e, 0.0) * s.run.cells_per_support / H + 3.0 for e in _domain_extent(s)[: s.dim])
+    cells = math.prod(max(e, 0.0) * grid_reach(s) / H + 3.0 for e in _domain_extent(s)[: s.dim])
     return {"per_block": per_block, "particles": particles, "cells": cells,
             "memory": particles * bytes_per_particle(s, backend) + cells * BYTES_PER_CELL}
 

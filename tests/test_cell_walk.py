@@ -114,11 +114,13 @@ def test_walk_visits_the_list_in_order_with_ghost_rows(reach):
 
 
 def test_a_walking_run_counts_the_neighbours_the_lists_hold():
-    # Given the dam break advanced a few steps with lists, and the same particles in a walking run
-    lists = Simulation(scene("dam_break", "particles.spacing=0.05"), "f64")
+    # Given the dam break advanced a few steps with lists, and the same particles in a walking run on
+    # the same grid (by default the walk has cells of H and lists cells of H / 2: scene.grid_reach)
+    lists = Simulation(scene("dam_break", "particles.spacing=0.05", "run.cells_per_support=2"), "f64")
     for _ in range(5):
         lists.step()
-    walk = Simulation(scene("dam_break", "particles.spacing=0.05", "run.neighbours='walk'"), "f64")
+    walk = Simulation(scene("dam_break", "particles.spacing=0.05", "run.neighbours='walk'",
+                            "run.cells_per_support=2"), "f64")
     walk.state = ParticleState.create(*(getattr(lists.state, f)[:lists.state.n_owned].copy()
                                         for f in ("id", "x", "v", "m")), np.float64)
     lists.refresh()

@@ -234,3 +234,26 @@ def test_sorting_the_ghosts_after_the_owned_rows_gives_the_order_of_one_sort(rea
     # and sorting the ghosts is refused when the owned rows were not sorted alone first
     with pytest.raises(RuntimeError, match="sorted alone"):
         once.sort_ghosts(whole)
+
+
+def test_cells_are_half_the_support_with_lists_and_the_support_with_the_walk_unless_the_scene_says():
+    # Given the same scene with lists, with the walk, and with cells_per_support set either way
+    from conftest import scene
+    from sphcore.scene import SceneError, grid_reach, resource_estimate
+    from sphcore.solver import Simulation
+    lists = scene("dam_break", "particles.spacing=0.05")
+    walk = scene("dam_break", "particles.spacing=0.05", "run.neighbours='walk'")
+    cells_h = scene("dam_break", "particles.spacing=0.05", "run.cells_per_support=1")
+    walk_half = scene("dam_break", "particles.spacing=0.05", "run.neighbours='walk'", "run.cells_per_support=2")
+    # Then the default (0) gives lists cells of H / 2 and the walk cells of H, and a set value wins
+    assert [grid_reach(s) for s in (lists, walk, cells_h, walk_half)] == [2, 1, 1, 2]
+    grids = [Simulation(s, "f64").grid for s in (lists, cells_h)]
+    H = lists.sph.support * lists.particles.spacing
+    assert [g.reach for g in grids] == [2, 1]
+    assert np.allclose(grids[0].cell[:2], H / 2) and np.allclose(grids[1].cell[:2], H)
+    # and the memory estimate counts the cells of the grid the run will have (up to 2^dim as many:
+    # the estimate adds 3 cells of margin per axis whatever their size)
+    ratio = resource_estimate(lists)["cells"] / resource_estimate(cells_h)["cells"]
+    assert 2 ** lists.dim / 2 < ratio <= 2 ** lists.dim
+    with pytest.raises(SceneError, match="run.cells_per_support"):
+        scene("dam_break", "run.cells_per_support=3")
