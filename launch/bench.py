@@ -136,6 +136,7 @@ def bench_case(scene_path: Path, dx: float, precision: str, threads: int, steps:
         "particles": sim.n_particles, "dx": dx, "steps": steps, "dt": sim.dt, "wall_s": wall,
         "particle_steps_per_s": sim.n_particles * steps / wall, "steps_per_s": steps / wall, "first_step_s": first,
         "neighbours": sim.neighbours_sum / max(sim.state.n_owned, 1), "neighbour_search": neighbours,
+        "cells_per_support": sim.grid.reach,
         "stage_median_s": stages, "stage_total_s": {k: v["total_s"] for k, v in timed.items()},
         "untimed_s_per_step": untimed,
         "leaks": sim.leaks, "host_bytes_per_particle": host_bpp, "device_bytes_per_particle": device_bpp,
@@ -378,6 +379,7 @@ def _row(r: dict) -> str:
     nb_text = f"{nb:5.1f}" if isinstance(nb, (int, float)) else "    -"
     where = "cuda     " if r.get("backend") == "cuda" else f"threads={r['threads']}"
     where += " walk " if r.get("neighbour_search") == "walk" else ""
+    where += f" cells=H/{r['cells_per_support']}" if r.get("cells_per_support", 1) != 1 else ""
     rate = f" {r['steps_per_s']:7.1f} steps/s" if r.get("backend") == "cuda" else ""
     memory = ""
     for key, label in (("host_bytes_per_particle", "host"), ("device_bytes_per_particle", "device")):

@@ -417,6 +417,7 @@ class DeviceGrid:
         self.traffic = traffic
         self.dtype = host.dtype
         self.ncells = host.ncells
+        self.reach = host.reach
         self.periodic = host.periodic
         self.capacity = capacity
         self.d_origin = cuda.to_device(host.origin)
@@ -897,7 +898,7 @@ def _binning_signatures(t) -> dict:
     sigs = {}
     for periodic in CHOICES["periodic"][0]:
         sigs[f"neighbours periodic={periodic}"] = (
-            _neighbour_kernel(periodic), (n, v2, types.boolean, i8v, i8v, v1, v1, v1, i8v, v1, f, nbr, i1))
+            _neighbour_kernel(periodic), (n, v2, types.boolean, i8v, i8v, v1, v1, v1, i8v, n, v1, f, nbr, i1))
     sigs.update({
         "cell_keys": (cell_keys, (v2, n, n, v1, v1, i8v, i8v, i8v, i1)),
         "scatter": (scatter, (i8v, n, i8v, i8v)),
@@ -911,7 +912,7 @@ def _binning_signatures(t) -> dict:
         "set_at": (_set_at, (i8v, i8v, n, types.int64)),
         "selected_rows": (_selected_rows, (i8v, n, i8v)),
         "complement": (_complement, (i8v, n, i8v)),
-        "zone": (_zone_kernel(), (v2, n, v1, v1, i8v, n, i8m, i8v, i8m, i8v, i8v, i8v, i8v)),
+        "zone": (_zone_kernel(), (v2, n, v1, v1, i8v, n, i8m, i8v, i8m, i8v, n, i8v, i8v, i8v)),
         "scatter_rows": (scatter_kernel((1, 2)), (i8v, n, v1, v1, v2, v2)),
         "gather": (gather_kernel(tuple(1 + len(state_fields.ROW_SHAPE[f]) for f in SORTED)),
                    (i8v, n, *(a for f in SORTED for a in ((i8v,) * 2 if f == "id" else (t[f],) * 2)))),
