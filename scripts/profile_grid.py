@@ -36,7 +36,7 @@ def main():
             f()
         print(f"{name:20s} {1e3 * (time.perf_counter() - t0) / k:8.1f} ms")
     timed("cell keys", lambda: G.compute_cell_keys(s.x, s.n_owned, g.origin, g.inv_cell, g.ncell, g._keys))
-    timed("counting sort", lambda: G._scatter_by_key(g._keys, g.bin_start, g._perm, g._fill))
+    timed("counting sort", lambda: G._scatter_by_key(g._keys, g.bin_start, g._perm))
     timed("sort cells by id", lambda: G._sort_bins_by_id(0, g._keys, g.bin_start, g._perm, s.id))
     timed("cell ranges", lambda: G._cell_ranges(g.bin_start, g.ncells, g.cell_begin, g.cell_end))
     timed("gather x", lambda: g._gather("x", s.x))

@@ -112,17 +112,15 @@ def compute_cell_coords(x, origin, inv_cell, ncell, out):
 
 
 @njit(cache=True)
-def _scatter_by_key(keys, cell_start, perm, fill):
-    """Histogram, exclusive prefix sum and stable scatter (serial: O(n + bins), memory-bound);
-    ``fill`` (bins,) is scratch, kept by the Grid (a fresh copy of the bins a step costs more than
-    the scatter with cells of H / 2)."""
+def _scatter_by_key(keys, cell_start, perm):
+    """Histogram, exclusive prefix sum and stable scatter (serial: O(n + bins), memory-bound)."""
     ncells = cell_start.shape[0] - 1
     cell_start[:] = 0
     for i in range(keys.shape[0]):
         cell_start[keys[i] + 1] += 1
     for c in range(ncells):
         cell_start[c + 1] += cell_start[c]
-    fill[:] = cell_start[:-1]
+    fill = cell_start[:-1].copy()
     for i in range(keys.shape[0]):
         k = keys[i]
         perm[fill[k]] = i
@@ -130,10 +128,10 @@ def _scatter_by_key(keys, cell_start, perm, fill):
 
 
 @njit(cache=True)
-def _scatter_ghosts(keys, n_owned, ncells, bin_start, perm, fill):
+def _scatter_ghosts(keys, n_owned, ncells, bin_start, perm):
     """The ghost rows' bins [ncells, 2 ncells) and their stable scatter into perm[n_owned:], after
     the owned rows' bins were filled by a sort of the owned rows alone (bin_start[ncells] = n_owned);
-    perm[:n_owned] is the identity (serial: O(ghosts + cells)); ``fill`` (>= ncells,) is scratch."""
+    perm[:n_owned] is the identity (serial: O(ghosts + cells))."""
     for c in range(ncells, 2 * ncells):
         bin_start[c + 1] = 0
     for i in range(n_owned, keys.shape[0]):
@@ -141,7 +139,7 @@ def _scatter_ghosts(keys, n_owned, ncells, bin_start, perm, fill):
     bin_start[ncells] = n_owned
     for c in range(ncells, 2 * ncells):
         bin_start[c + 1] += bin_start[c]
-    fill[:ncells] = bin_start[ncells:2 * ncells]
+    fill = bin_start[ncells:2 * ncells].copy()
     for i in range(n_owned):
         perm[i] = i
     for i in range(n_owned, keys.shape[0]):
@@ -176,10 +174,9 @@ def sort_bin_row(c, bin_start, perm, ids):
         perm[j + 1] = pk
 
 
-def counting_sort(keys, ids, bin_start, perm, fill):
-    """Permutation ordering rows by (key, id); fills ``bin_start`` (nbins + 1); ``fill`` (nbins,)
-    is scratch."""
-    _scatter_by_key(keys, bin_start, perm, fill)
+def counting_sort(keys, ids, bin_start, perm):
+    """Permutation ordering rows by (key, id); fills ``bin_start`` (nbins + 1)."""
+    _scatter_by_key(keys, bin_start, perm)
     _sort_bins_by_id(0, keys, bin_start, perm, ids)
 
 
@@ -451,7 +448,6 @@ class Grid:
                            *r, math.prod(2 * a + 1 for a in r))
         self.ncells = int(np.prod(self.ncell))
         self.bin_start = np.zeros(2 * self.ncells + 1, dtype=np.int64)
-        self._fill = np.zeros(2 * self.ncells, dtype=np.int64)  # the counting sort's scratch
         self.cell_begin = np.zeros(self.ncells, dtype=np.int64)
         self.cell_end = np.zeros(self.ncells, dtype=np.int64)
         self.contiguous = True
@@ -474,7 +470,7 @@ class Grid:
         n = state.n
         self._ensure(n)
         compute_cell_keys(state.x, state.n_owned, self.origin, self.inv_cell, self.ncell, self._keys)
-        counting_sort(self._keys, state.id, self.bin_start, self._perm, self._fill)
+        counting_sort(self._keys, state.id, self.bin_start, self._perm)
         mixed = _cell_ranges(self.bin_start, self.ncells, self.cell_begin, self.cell_end)
         if mixed:
             raise RuntimeError(f"{mixed} grid cells hold both owned and ghost particles: a migration was missed")
@@ -494,7 +490,7 @@ class Grid:
             raise RuntimeError("sort_ghosts: the owned rows were not sorted alone first")
         self._ensure(n)
         compute_cell_keys(state.x, n_owned, self.origin, self.inv_cell, self.ncell, self._keys)
-        _scatter_ghosts(self._keys, n_owned, self.ncells, self.bin_start, self._perm, self._fill)
+        _scatter_ghosts(self._keys, n_owned, self.ncells, self.bin_start, self._perm)
         _sort_bins_by_id(n_owned, self._keys, self.bin_start, self._perm, state.id)
         mixed = _cell_ranges(self.bin_start, self.ncells, self.cell_begin, self.cell_end)
         if mixed:
