@@ -351,6 +351,10 @@ def test_a_stopped_peer_is_told_from_one_that_ended(how, caplog):
         for step in range(20):
             me.wait(1, (step, "tick"))
             me.send(1, (step, "tock"), {})
+        # its tick for step 20 follows our last tock at once: take it, so that the tick awaited below is
+        # one it cannot have sent (it waits for a tock 20 that never comes) and the wait must end in PeerLost
+        step += 1
+        me.wait(1, (step, "tick"))
         # When it is stopped (or killed) while we wait for its next message
         os.kill(child.pid, getattr(signal, how))
         t0 = time.perf_counter()
