@@ -1,5 +1,14 @@
 """Shared helpers for the test suite."""
+import os
 from pathlib import Path
+
+# Under pytest-xdist (make test: WORKERS processes) the workers share the cores, and a parallel loop's
+# OpenMP threads spin while they wait for a thread the other worker's process has descheduled: the
+# quick dam-break validation took 74 s beside a busy core, 38 s with passive waits (31 s with one
+# thread; 2026-12-05, 2 cores). So the workers' numba threads (and the peer processes they start,
+# which inherit it) wait passively; set before anything imports numba. Results do not depend on it.
+if int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "0") or 0) > 1:
+    os.environ.setdefault("OMP_WAIT_POLICY", "passive")
 
 import pytest
 
