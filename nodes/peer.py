@@ -22,7 +22,7 @@ from nodes import control
 from nodes.endpoint import PeerTimeout
 from sphcore import checkpoint
 from sphcore.decomposition import Decomposition, choose_dims
-from sphcore.halo import MAX_CONTROL_BYTES, Reject, decode_commands, encode_commands, expect_arrays
+from sphcore.halo import MAX_CONTROL_BYTES, Reject, decode_commands, encode_commands, expect_arrays, has_repeats
 from sphcore.solver import Simulation
 
 log = logging.getLogger("sph.peer")
@@ -372,7 +372,7 @@ def _final_check(sim: Simulation, q: int, own: dict, parts: list, peers: list):
         n, dtype = len(ids), sim.dtype
         expect_arrays(msg, {"id": ((n,), np.int64), "x": ((n, 3), dtype), "v": ((n, 3), dtype), "rho": ((n,), dtype),
                             "stats": (msg["stats"].shape, np.uint8)}, what)
-        if n and (not sim.ids_valid(ids) or len(np.unique(ids)) != n
+        if n and (not sim.ids_valid(ids) or has_repeats(ids)
                   or any(np.isin(ids, p["id"]).any() for p in parts)):
             raise Reject("ids", f"{what}: ids outside {sim.ids_text()}, repeated, or reported by another peer")
         stats = _json_of(msg["stats"], f"{what}: statistics")

@@ -85,6 +85,14 @@ def expect_arrays(msg: dict, expected: dict, what: str):
             raise Reject("not finite", f"{what}: {name} holds NaN or Inf")
 
 
+def has_repeats(ids: np.ndarray) -> bool:
+    """Whether a 1-D id array holds a value twice. By sorting: numpy 2.4's hash-based np.unique took
+    0.94 ms for a peer's 3,072 ghost ids, a sort and a compare 0.06 ms (2026-12-05), and every ghost
+    and migrant message is checked every step."""
+    s = np.sort(ids)
+    return bool((s[1:] == s[:-1]).any())
+
+
 POSITIONS = "positions"  # exchange 1b's phase: the ghost rows' id, x, v, m (and carried extras)
 
 
@@ -205,7 +213,7 @@ class PeerHalo:
             expect_arrays(msg, carried_layout(n, dtype, self._extra_shapes), what)
             if not (msg["m"] > 0).all():
                 raise Reject("mass", f"{what}: a mass m <= 0")
-            if n and (not sim.ids_valid(ids) or len(np.unique(ids)) != n):
+            if n and (not sim.ids_valid(ids) or has_repeats(ids)):
                 raise Reject("ids", f"{what}: ids this run's particles cannot have ({sim.ids_text()}), or repeated")
             cells = sim.grid.cells_of(msg["x"])
             if not placed(cells).all():

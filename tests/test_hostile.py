@@ -302,6 +302,7 @@ def _forge_ahead(cluster, step):
     put(0, "positions", dict(ghost, x=np.full_like(ghost["x"], np.nan)), "not finite")
     put(0, "positions", dict(ghost, m=-ghost["m"]), "mass")
     put(0, "positions", dict(ghost, id=np.full(4, 10 ** 9)), "ids")
+    put(0, "positions", dict(ghost, id=ghost["id"][[0, 1, 2, 1]]), "ids")  # valid ids, one of them twice
     put(0, "positions", dict(ghost, extra=np.zeros(4)), "arrays")
     put(1, "positions", intruder, "owner")
     lo, hi = n_ghosts[0]
@@ -337,3 +338,15 @@ def test_in_process_peers_drop_what_breaks_the_protocol_and_stay_bitwise_equal()
     a, b = calm.final_arrays(), hit.final_arrays()
     for key in ("id", "x", "v", "rho"):
         assert np.array_equal(a[key], b[key]), key
+
+
+@pytest.mark.fast
+def test_a_repeated_id_is_found_wherever_it_sits():
+    from sphcore.halo import has_repeats
+    ids = np.random.default_rng(5).permutation(10_000)[:3072].astype(np.int64)
+    assert not has_repeats(ids) and not has_repeats(ids[:1]) and not has_repeats(ids[:0])
+    for a, b in [(0, 1), (0, 3071), (1500, 17), (3071, 3070)]:
+        twice = ids.copy()
+        twice[b] = twice[a]
+        assert has_repeats(twice), (a, b)
+    assert has_repeats(np.array([-1, 5, -1]))
