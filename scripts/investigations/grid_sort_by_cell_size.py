@@ -24,7 +24,7 @@ for R in (1, 2, 1, 2):
     g.bin(s)
     g._ensure(s.n)
     t_keys = timed(lambda: G.compute_cell_keys(s.x, s.n_owned, g.origin, g.inv_cell, g.ncell, g._keys))
-    t_scatter = timed(lambda: G._scatter_by_key(g._keys, g.bin_start, g._perm, g._fill))
+    t_scatter = timed(lambda: G._scatter_by_key(g._keys, g.bin_start, g._perm))
     t_id = timed(lambda: G._sort_bins_by_id(0, g._keys, g.bin_start, g._perm, s.id))
     t_ranges = timed(lambda: G._cell_ranges(g.bin_start, g.ncells, g.cell_begin, g.cell_end))
     t_sort = timed(lambda: g.sort(s))
