@@ -129,23 +129,40 @@ def _scatter_by_key(keys, cell_start, perm):
 
 @njit(cache=True)
 def _scatter_ghosts(keys, n_owned, ncells, bin_start, perm):
-    """The ghost rows' bins [ncells, 2 ncells) and their stable scatter into perm[n_owned:], after
-    the owned rows' bins were filled by a sort of the owned rows alone (bin_start[ncells] = n_owned);
-    perm[:n_owned] is the identity (serial: O(ghosts + cells))."""
-    for c in range(ncells, 2 * ncells):
-        bin_start[c + 1] = 0
-    for i in range(n_owned, keys.shape[0]):
-        bin_start[keys[i] + 1] += 1
-    bin_start[ncells] = n_owned
-    for c in range(ncells, 2 * ncells):
-        bin_start[c + 1] += bin_start[c]
-    fill = bin_start[ncells:2 * ncells].copy()
+    """The ghost rows' bins [ncells, 2 ncells) and their stable order in perm[n_owned:], after a sort
+    of the owned rows alone (which leaves every ghost bin starting at n_owned; perm[:n_owned] is the
+    identity). The ghosts are few and their cells fewer: they are ordered by a stable sort of their
+    keys, and the ghost bins are rewritten as the runs of one start value between the ghosts' cells,
+    from the first ghost's cell on: no histogram, prefix sum or copy over every cell (a peer's grid
+    is the global one; docs/BENCHMARKS.md). The same perm and bin_start as the counting scatter."""
+    n = keys.shape[0]
     for i in range(n_owned):
         perm[i] = i
-    for i in range(n_owned, keys.shape[0]):
-        k = keys[i] - ncells
-        perm[fill[k]] = i
-        fill[k] += 1
+    order = np.argsort(keys[n_owned:], kind="mergesort")  # stable: a cell's rows keep their order
+    b = ncells + 1  # bins up to the first ghost's keep their start, n_owned
+    if n > n_owned:
+        b = keys[n_owned + order[0]] + 1
+    for t in range(n - n_owned):
+        i = n_owned + order[t]
+        perm[n_owned + t] = i
+        while b <= keys[i]:  # bins before row i's own, after the previous row's: t ghosts precede them
+            bin_start[b] = n_owned + t
+            b += 1
+    while b <= 2 * ncells:
+        bin_start[b] = n
+        b += 1
+
+
+@njit(cache=True)
+def _ghost_cell_ranges(keys, n_owned, ncells, bin_start, perm, cell_begin, cell_end):
+    """After ``_cell_ranges`` of the owned rows alone and ``_scatter_ghosts``: the ranges of the
+    cells holding ghost rows (the others keep theirs); returns how many also hold owned rows."""
+    mixed = 0
+    for k in range(n_owned, perm.shape[0]):
+        c = keys[perm[k]]
+        if k == n_owned or keys[perm[k - 1]] != c:
+            mixed += cell_range_row(c - ncells, bin_start, ncells, cell_begin, cell_end)
+    return mixed
 
 
 @njit(cache=True, parallel=True)
@@ -492,7 +509,8 @@ class Grid:
         compute_cell_keys(state.x, n_owned, self.origin, self.inv_cell, self.ncell, self._keys)
         _scatter_ghosts(self._keys, n_owned, self.ncells, self.bin_start, self._perm)
         _sort_bins_by_id(n_owned, self._keys, self.bin_start, self._perm, state.id)
-        mixed = _cell_ranges(self.bin_start, self.ncells, self.cell_begin, self.cell_end)
+        mixed = _ghost_cell_ranges(self._keys, n_owned, self.ncells, self.bin_start, self._perm, self.cell_begin,
+                                   self.cell_end)
         if mixed:
             raise RuntimeError(f"{mixed} grid cells hold both owned and ghost particles: a migration was missed")
         self.contiguous = n_owned == n
