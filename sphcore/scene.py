@@ -159,7 +159,9 @@ class SPH:
 @dataclass(frozen=True)
 class Terms:
     xsph: float = spec(0.0, "XSPH velocity smoothing eps (0 = off; typical 0.1-0.5)", range=(0.0, 1.0), control=LIVE)
-    shifting: float = spec(0.0, "Fickian particle shifting coefficient A, D = A h |v| dt (0 = off; typical 1-2)",
+    shifting: float = spec(0.0, "Fickian particle shifting coefficient A, D = A h |v| dt (0 = off; typical 1-2 with "
+                                     "a free surface; 8 in the closed Taylor-Green and cavity scenes, where it also "
+                                     "refills voids; walls count as fluid)",
                            range=(0.0, 10.0), control=LIVE)
     surface_tension: float = spec(0.0, "colour-field surface tension sigma in N/m (0 = off)", range=(0.0, 1.0e3),
                                   control=LIVE)

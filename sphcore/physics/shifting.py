@@ -15,17 +15,25 @@ correction is); the momentum equation is untouched. The drift diffuses the conce
 diffusivity ~A h |v|, so the step is limited to cfl h / (A max|v|) (sphcore/timestep.py): WCSPH's
 acoustic step is smaller anyway, DFSPH's flow-speed step is not.
 
+Walls count as fluid: C_i includes the walls' share Phi(d_i) of a full lattice (walls.py: the
+virtual lattice behind an analytic wall) and grad C_i its gradient, so a lattice particle next to a
+wall or in a corner sees a full neighbourhood (C = 1, no gradient) and a disordered one is shifted
+towards the wall as readily as away from it. (Before 2026-12-05 only the fluid counted: C ~ 0.5 by a
+wall put every particle within H of it in the surface layer below, unshifted, and the wall-normal
+component was removed besides; a void by a wall, such as the lid-driven cavity's upstream corner,
+could not be refilled.)
+
 Near a free surface grad C points into the fluid because of the missing neighbours, not because
 of disorder, and would push particles out of the fluid: in the free-surface layer (C_i below
 ``SURFACE_CONCENTRATION``) there is no shift (the simplest of the surface treatments of Lind et al.
-2012, section 3.3). Near an analytic wall the wall-normal component is removed, so a shift never
-pushes a particle towards a wall.
+2012, section 3.3). A closed flow (``sph.clamp_negative_pressure = false``: no free surface) has no
+such layer; there a low C marks a void, and the shift draws the particles around it in.
 """
 from numba import njit
 import math
 from sphcore.physics.kernels import dw_dr_over_r, w
 from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
-from sphcore.physics.walls import signed_distance
+from sphcore.physics.walls import wall_density_gradient, wall_terms
 from sphcore.physics.real import like
 
 SURFACE_CONCENTRATION = 0.9  # C_i below this marks a particle of the free-surface layer
@@ -39,9 +47,10 @@ def concentration_gradient_pair(m_j, rho0, dw_over_r):
 
 @njit(cache=True, inline="always")
 def shifting_row(kernel, periodic, neighbours, add, prm, i, x, v, m, rho, nbr, counts, cells, cell_begin, cell_end,
-                 wall_kind, wall_data, dv):
-    """Particle shifting as a drift velocity, -A h |v_i| grad C_i, free-surface and wall-normal
-    components removed (shifting.py); added to dv if ``add`` (XSPH wrote it), else written."""
+                 wall_kind, wall_data, wall_tables, dv):
+    """Particle shifting as a drift velocity, -A h |v_i| grad C_i, the walls' share in C and its
+    gradient, none in a free surface's layer (shifting.py); added to dv if ``add`` (XSPH wrote it),
+    else written."""
     gx = like(prm.H, 0.0)
     gy = like(prm.H, 0.0)
     gz = like(prm.H, 0.0)
@@ -61,17 +70,20 @@ def shifting_row(kernel, periodic, neighbours, add, prm, i, x, v, m, rho, nbr, c
             gx += f * dx
             gy += f * dy
             gz += f * dz
-    if c < like(c, SURFACE_CONCENTRATION):  # free-surface layer: grad C is the surface's, not disorder's
+    if wall_kind.shape[0] > 0:  # the walls' share of C, Phi(d_i) (a full wall's: theta = 1), and its gradient
+        zero = like(prm.H, 0.0)
+        share, _, _, _ = wall_terms(kernel, prm, False, wall_kind, wall_data, wall_tables, wall_tables, False,
+                                    x[i, 0], x[i, 1], x[i, 2], zero, rho[i], zero, zero, zero)
+        c += share / prm.rho0
+        wx, wy, wz = wall_density_gradient(kernel, prm, wall_kind, wall_data, wall_tables, x, i, rho[i],
+                                           like(prm.H, 1.0))
+        gx += wx / prm.rho0
+        gy += wy / prm.rho0
+        gz += wz / prm.rho0
+    if prm.clamp_negative and c < like(c, SURFACE_CONCENTRATION):  # free-surface layer: grad C is the surface's
         gx = like(gx, 0.0)
         gy = like(gy, 0.0)
         gz = like(gz, 0.0)
-    for q in range(wall_kind.shape[0]):  # near a wall: no shift along its normal
-        d, nx, ny, nz = signed_distance(wall_kind[q], wall_data[q], x[i, 0], x[i, 1], x[i, 2])
-        if d < prm.H:
-            gn = gx * nx + gy * ny + gz * nz
-            gx -= gn * nx
-            gy -= gn * ny
-            gz -= gn * nz
     speed = math.sqrt(v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1] + v[i, 2] * v[i, 2])
     s = -prm.shift_a * prm.h * speed
     if add:
