@@ -113,18 +113,28 @@ def compute_cell_coords(x, origin, inv_cell, ncell, out):
 
 @njit(cache=True)
 def _scatter_by_key(keys, cell_start, perm):
-    """Histogram, exclusive prefix sum and stable scatter (serial: O(n + bins), memory-bound)."""
-    ncells = cell_start.shape[0] - 1
-    cell_start[:] = 0
-    for i in range(keys.shape[0]):
+    """Histogram, exclusive prefix sum and stable scatter (serial, memory-bound). The passes over
+    the bins stop at the largest key (the bins after it start at n): an owned-rows sort leaves the
+    ghost half of the bins, as many as the cells, to a fill. The scatter advances each bin's start
+    to its end, the next bin's start, and one pass shifts them back: no copy of the bins."""
+    n = keys.shape[0]
+    top = 0  # bins [0, top) hold rows
+    for i in range(n):
+        if keys[i] >= top:
+            top = keys[i] + 1
+    cell_start[:top + 1] = 0
+    for i in range(n):
         cell_start[keys[i] + 1] += 1
-    for c in range(ncells):
+    for c in range(top):
         cell_start[c + 1] += cell_start[c]
-    fill = cell_start[:-1].copy()
-    for i in range(keys.shape[0]):
+    for i in range(n):
         k = keys[i]
-        perm[fill[k]] = i
-        fill[k] += 1
+        perm[cell_start[k]] = i
+        cell_start[k] += 1
+    for c in range(top, 0, -1):
+        cell_start[c] = cell_start[c - 1]
+    cell_start[0] = 0
+    cell_start[top + 1:] = n
 
 
 @njit(cache=True)

@@ -257,3 +257,25 @@ def test_cells_are_half_the_support_with_lists_and_the_support_with_the_walk_unl
     assert 2 ** lists.dim / 2 < ratio <= 2 ** lists.dim
     with pytest.raises(SceneError, match="run.cells_per_support"):
         scene("dam_break", "run.cells_per_support=3")
+
+
+@pytest.mark.parametrize("keys", [[], [0, 0, 0], [5, 4, 5, 3], [9, 0, 9], "random", "owned half"])
+def test_the_counting_scatter_is_a_stable_sort_with_every_bin_start(keys):
+    """_scatter_by_key: perm is the stable order of the keys and bin b starts at the number of keys
+    below b, for every bin: those after the largest key (left to a fill) and the last one too."""
+    from sphcore.grid import _scatter_by_key
+    rng = np.random.default_rng(5)
+    nbins = 10
+    if keys == "random":
+        nbins = 5000
+        keys = rng.integers(0, nbins, 3000)
+    elif keys == "owned half":  # an owned-rows sort: keys in the first half of the bins only
+        nbins = 5000
+        keys = np.sort(rng.integers(0, nbins // 2, 3000))
+        keys[rng.integers(0, 3000, 40)] = rng.integers(0, nbins // 2, 40)  # a few rows changed cells
+    keys = np.asarray(keys, dtype=np.int64)
+    start = np.full(nbins + 1, -7, dtype=np.int64)  # stale values from an earlier step
+    perm = np.full(len(keys), -1, dtype=np.int64)
+    _scatter_by_key(keys, start, perm)
+    assert perm.tolist() == np.argsort(keys, kind="stable").tolist()
+    assert start.tolist() == np.searchsorted(np.sort(keys), np.arange(nbins + 1)).tolist()
