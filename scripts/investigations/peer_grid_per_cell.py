@@ -2,7 +2,8 @@
 
 Each peer holds the global grid: with cells of H / 2 the 49k-particle 3D dam break of ``sph bench``
 has about 258,000 cells, and a peer of two sorts its owned rows (``_scatter_by_key``: histogram,
-prefix sum and scatter over 2 x 258,000 bins), sets every cell's range (``_cell_ranges``), then bins
+prefix sum and scatter over the bins up to its largest key, the owned half of the 2 x 258,000, and a
+fill of the rest since 2026-12-05: 0.65 ms against 1.74 over all of them), sets every cell's range (``_cell_ranges``), then bins
 its ghost rows (``_scatter_ghosts``: the ghost half of the bins again) and sets every range again.
 Those passes cost the same on a peer holding half the particles, so they weigh twice as much in its
 step. This times them alone at one thread, with 24,576 owned rows and 3,072 ghost rows (one peer of
@@ -59,7 +60,7 @@ def main():
     t_ghosts = max(timed(ghosts, repeat=a.repeat) - t_copy, 0.0)
     t_ghost_ranges = timed(grid._ghost_cell_ranges, keys, n_owned, ncells, bin_start, perm, begin, end, repeat=a.repeat)
     print(f"{ncells} cells, {n_owned} owned and {n_ghosts} ghost rows, 1 thread, ms per call:")
-    print(f"  owned rows' counting scatter (2 x cells bins)    {t_owned:.2f}")
+    print(f"  owned rows' counting scatter                     {t_owned:.2f}")
     print(f"  cell ranges (every cell)                         {t_ranges:.2f}")
     print(f"  ghost rows' order and bins                       {t_ghosts:.2f}")
     print(f"  ghost cells' ranges                              {t_ghost_ranges:.2f}")
