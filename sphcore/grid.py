@@ -251,13 +251,23 @@ def gather_rows_1d(src, perm, dst):
 @njit(cache=True, inline="always")
 def _scan_range(store_all, i, lo, hi, x, xi, yi, zi, H2, period, periodic, nbr, count, cap):
     """Append to row i of ``nbr`` every j != i in [lo, hi) within the support; count past the
-    capacity so the caller can grow it and rebuild. With ``store_all`` (the CPU) it is branch-free:
-    every candidate is stored at the next free column (column ``cap``, a spare, once the list is
-    full) and the count advances only for a neighbour; about a third of the candidates are accepted,
-    in no pattern a branch predictor could learn, so a branch here mispredicts on most particles'
-    every few candidates. On a GPU (``store_all`` false) only neighbours are stored: there a store
-    per candidate is a scattered write for every lane of a warp, about four times the list's own
-    writes. The lists are the same either way."""
+    capacity so the caller can grow it and rebuild. Row i itself lies in one range only (its own
+    cell's), which is scanned on either side of it: no candidate is compared with i."""
+    if lo <= i < hi:
+        count = _scan_span(store_all, i, lo, i, x, xi, yi, zi, H2, period, periodic, nbr, count, cap)
+        return _scan_span(store_all, i, i + 1, hi, x, xi, yi, zi, H2, period, periodic, nbr, count, cap)
+    return _scan_span(store_all, i, lo, hi, x, xi, yi, zi, H2, period, periodic, nbr, count, cap)
+
+
+@njit(cache=True, inline="always")
+def _scan_span(store_all, i, lo, hi, x, xi, yi, zi, H2, period, periodic, nbr, count, cap):
+    """Append to row i of ``nbr`` every j in [lo, hi) (which excludes i) within the support. With
+    ``store_all`` (the CPU) it is branch-free: every candidate is stored at the next free column
+    (column ``cap``, a spare, once the list is full) and the count advances only for a neighbour;
+    about a third of the candidates are accepted, in no pattern a branch predictor could learn, so a
+    branch here mispredicts on most particles' every few candidates. On a GPU (``store_all`` false)
+    only neighbours are stored: there a store per candidate is a scattered write for every lane of a
+    warp, about four times the list's own writes. The lists are the same either way."""
     for j in range(lo, hi):
         dx = xi - x[j, 0]
         dy = yi - x[j, 1]
@@ -269,7 +279,7 @@ def _scan_range(store_all, i, lo, hi, x, xi, yi, zi, H2, period, periodic, nbr, 
                 dy = minimum_image(dy, period[1])
             if period[2] > 0.0:
                 dz = minimum_image(dz, period[2])
-        inside = (dx * dx + dy * dy + dz * dz < H2) & (j != i)
+        inside = dx * dx + dy * dy + dz * dz < H2
         if store_all:
             nbr[i, min(count, cap)] = j
             count += 1 if inside else 0
@@ -410,7 +420,8 @@ def _build_neighbours(periodic, x, n_query, contiguous, cell_begin, cell_end, or
     """Neighbour lists of rows 0..n_query-1 (neighbour_row)."""
     literally(periodic)
     for i in prange(n_query):
-        neighbour_row(periodic, True, i, x, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell, reach,
+        # np.int64: numba types a prange index as uint64, and uint64 with int64 is float64 arithmetic
+        neighbour_row(periodic, True, np.int64(i), x, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell, reach,
                       period, H2, nbr, counts)
 
 
