@@ -14,7 +14,7 @@ import numpy as np
 
 from sphcore import grid as grid_mod
 from sphcore import stages as st
-from sphcore.boundaries import build_walls, lattice_gradient_moment, lattice_sum, table_end
+from sphcore.boundaries import build_walls, lattice_gradient_moment, lattice_sum, near_wall_cells, table_end
 from sphcore.choices import EOSES, INTEGRATORS, KERNELS, VISCOSITIES, Viscosity
 from sphcore.params import make_params
 from sphcore.physics.external import ramp_factor
@@ -84,6 +84,7 @@ class Model:
         self.mass = rho0 / S  # the full lattice sums to rho0
 
         self.host_grid = make_grid(scene, self.walls, self.H, dtype)
+        self.walls.near = near_wall_cells(self.walls, self.host_grid)  # where the walls' terms can be non-zero
         self.grid_lo = self.host_grid.origin.astype(np.float64)
         self.lo = self.grid_lo.astype(dtype)
         self.periodic = int(self.host_grid.periodic)

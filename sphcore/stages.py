@@ -63,7 +63,7 @@ CHOICES = MappingProxyType({
 # Every argument a row function may name: name -> (type, meaning and unit). Types: "params" (the
 # Params NamedTuple), "float" (a scalar in the run's precision), "int", "bool", "vec" (n, 3) and "row" (n,)
 # arrays in the run's precision, "nbr" (n, capacity) int32 neighbour lists (column-major on the
-# GPU), "pairs" (3, n, capacity) in the run's precision (a value per list entry), "counts" (n,) int32, "cells" (grid.Cells), "cell_rows" (cells,) int64, "kinds" (walls,)
+# GPU), "pairs" (3, n, capacity) in the run's precision (a value per list entry), "counts" (n,) int32, "cells" (grid.Cells), "cell_rows" (cells,) int64, "cell_flags" (cells,) uint8, "kinds" (walls,)
 # int32, "table" 2-D float arrays, "terms64" a (k,) float64 array whatever the precision.
 ARGUMENTS = MappingProxyType({
     "prm": ("params", "physical parameters (params.Params)"),
@@ -91,6 +91,8 @@ ARGUMENTS = MappingProxyType({
     "wall_motion": ("table", "each wall's velocity [0:3] (m/s), acceleration [3:6] (m/s^2), angular velocity [6:9] "
                              "(rad/s) and acceleration [9:12] (rad/s^2) about its pivot [12:15] (m), now (motion.py)"),
     "wall_zones": ("table", "inlet and outlet zones: [kind, lo (3), hi (3), U (3)] (physics/open_boundary.py)"),
+    "wall_near": ("cell_flags", "1 for every grid cell a wall may reach within H (boundaries.near_wall_cells): "
+                                "only its particles evaluate the walls' terms (physics/walls.near_wall)"),
     "lo": ("row", "the grid origin (3,) (m): periodic wrapping"),
     # per-step scalars the step passes
     "dt": ("float", "this step (s)"),

@@ -621,6 +621,7 @@ class CudaStages(Engine):
                       "wall_tables": cuda.to_device(np.ascontiguousarray(w.tables)),
                       "wall_motion": cuda.to_device(np.ascontiguousarray(w.motion)),
                       "wall_zones": cuda.to_device(np.ascontiguousarray(w.zones)),
+                      "wall_near": cuda.to_device(np.ascontiguousarray(w.near)),
                       "lo": cuda.to_device(sim.model.lo)}
         # a stage's reduced values (stages.REDUCTIONS): the integer kinds, and the real maxima
         self.out = {"int64": cuda.device_array(MAX_REDUCED, dtype=np.int64),
@@ -860,7 +861,8 @@ def argument_types(dtype: str) -> dict:
                "row": types.Array(f, 1, "C"), "nbr": types.Array(types.int32, 2, "F"),
                "pairs": types.Array(f, 3, "C"),
                "counts": types.Array(types.int32, 1, "C"), "cells": numba.typeof(cells),
-               "cell_rows": types.Array(types.int64, 1, "C"), "kinds": types.Array(types.int32, 1, "C"),
+               "cell_rows": types.Array(types.int64, 1, "C"), "cell_flags": types.Array(types.uint8, 1, "C"),
+               "kinds": types.Array(types.int32, 1, "C"),
                "table": types.Array(f, 2, "C"), "terms64": types.Array(types.float64, 1, "C")}
     out = {name: by_kind[kind] for name, (kind, _) in ARGUMENTS.items()}
     out.update({s.name: by_kind["row" if s.components == 1 else "vec"] for s in SCRATCH})

@@ -15,7 +15,7 @@ from sphcore.physics.continuity import density_rate_pair
 from sphcore.physics.eos import pressure
 from sphcore.physics.kernels import dw_dr_over_r
 from sphcore.physics.pairs import candidate, computed_gradient, span_rows, spans, store_gradient, walk_start
-from sphcore.physics.walls import fill_fraction, moving_wall_rate, wall_density_gradient, wall_terms
+from sphcore.physics.walls import fill_fraction, moving_wall_rate, near_wall, wall_density_gradient, wall_terms
 from sphcore.physics.real import like
 
 
@@ -27,8 +27,8 @@ def density_pair(kernel, m_j, r_ij, H, s_w):
 
 @njit(cache=True, inline="always")
 def density_row(kernel, eos, periodic, neighbours, pair_gradients, continuity, prm, i, x, v, m, nbr, counts, cells,
-                cell_begin, cell_end, wall_kind, wall_data, wall_tables, wall_motion, dt_prev, commit, rho_c, rho, p,
-                fill, grad_w):
+                cell_begin, cell_end, wall_kind, wall_data, wall_tables, wall_motion, wall_near, dt_prev, commit, rho_c,
+                rho, p, fill, grad_w):
     """rho_i = m_i W(0) + sum_j m_j W_ij + theta_i rho0 Phi(d_i);  p_i = EOS(rho_i); fill_i = theta_i.
     With ``continuity``: rho_i = rho_c[i] + dt_prev D rho_i/Dt, the carried density advanced by the
     continuity equation over the previous step with the velocities that moved the particles here
@@ -57,10 +57,13 @@ def density_row(kernel, eos, periodic, neighbours, pair_gradients, continuity, p
                 g = dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
                 rate += density_rate_pair(m[j], v[i, 0] - v[j, 0], v[i, 1] - v[j, 1], v[i, 2] - v[j, 2],
                                           g * dx, g * dy, g * dz)
-    # the walls' density share: geometry only (no frame: the motion argument, here wall_tables, is not read)
-    drho, _, _, _ = wall_terms(kernel, prm, False, wall_kind, wall_data, wall_tables, wall_tables, False,
-                               x[i, 0], x[i, 1], x[i, 2], like(rho_i, 0.0), rho_i, like(rho_i, 0.0), like(rho_i, 0.0),
-                               like(rho_i, 0.0))
+    # the walls' density share: geometry only (no frame: the motion argument, here wall_tables, is not read);
+    # zero, and not evaluated, in a cell no wall reaches
+    drho = like(rho_i, 0.0)
+    if near_wall(cells, wall_near, x, i):
+        drho, _, _, _ = wall_terms(kernel, prm, False, wall_kind, wall_data, wall_tables, wall_tables, False,
+                                   x[i, 0], x[i, 1], x[i, 2], like(rho_i, 0.0), rho_i, like(rho_i, 0.0),
+                                   like(rho_i, 0.0), like(rho_i, 0.0))
     theta = fill_fraction(rho_i, drho, prm.rho0)
     fill[i] = theta
     rho_i += theta * drho

@@ -13,12 +13,12 @@ from sphcore.physics.kernels import dw_dr_over_r, lap_w_viscosity
 from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
 from sphcore.physics.pressure import pressure_pair
 from sphcore.physics.viscosity import artificial_pair, morris_pair, muller_pair
-from sphcore.physics.walls import wall_terms, wall_viscosity
+from sphcore.physics.walls import near_wall, wall_terms, wall_viscosity
 
 
 @njit(cache=True, inline="always")
 def acceleration_row(kernel, viscosity, periodic, neighbours, prm, i, x, v, m, rho, p, nbr, counts, cells, cell_begin,
-                     cell_end, wall_kind, wall_data, wall_tables, wall_motion, fill, a):
+                     cell_end, wall_kind, wall_data, wall_tables, wall_motion, wall_near, fill, a):
     """a_i = pressure + viscosity + body force + wall pressure.   (pressure.py, viscosity.py,
     external.py, walls.py; moving walls: motion.py)"""
     bx, by, bz = body_acceleration_at(prm, x[i, 0], x[i, 1], x[i, 2])
@@ -56,11 +56,12 @@ def acceleration_row(kernel, viscosity, periodic, neighbours, prm, i, x, v, m, r
                 ax += g * (v[i, 0] - v[j, 0])
                 ay += g * (v[i, 1] - v[j, 1])
                 az += g * (v[i, 2] - v[j, 2])
-    _, wx, wy, wz = wall_terms(kernel, prm, True, wall_kind, wall_data, wall_tables, wall_motion, True,
-                               x[i, 0], x[i, 1], x[i, 2], p_i, rho_i, bx, by, bz)
-    ax += fill[i] * wx
-    ay += fill[i] * wy
-    az += fill[i] * wz
+    if near_wall(cells, wall_near, x, i):  # elsewhere the walls' terms are zero
+        _, wx, wy, wz = wall_terms(kernel, prm, True, wall_kind, wall_data, wall_tables, wall_motion, True,
+                                   x[i, 0], x[i, 1], x[i, 2], p_i, rho_i, bx, by, bz)
+        ax += fill[i] * wx
+        ay += fill[i] * wy
+        az += fill[i] * wz
     if viscosity == 3:  # Viscosity.MORRIS: no-slip walls
         kv, ux, uy, uz = wall_viscosity(prm, wall_kind, wall_data, wall_tables, wall_motion, x[i, 0], x[i, 1],
                                         x[i, 2], rho_i)

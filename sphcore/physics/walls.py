@@ -150,6 +150,16 @@ def signed_distance(kind, wd, x, y, z):
 
 
 @njit(cache=True, inline="always")
+def near_wall(cells, wall_near, x, i):
+    """Whether row i's grid cell is flagged as within reach of a wall (boundaries.near_wall_cells):
+    elsewhere every wall term is zero, and the passes skip them (the same cell as grid.home_cell)."""
+    ix = min(max(int((x[i, 0] - cells.ox) * cells.ux), 0), cells.nx - 1)
+    iy = min(max(int((x[i, 1] - cells.oy) * cells.uy), 0), cells.ny - 1)
+    iz = min(max(int((x[i, 2] - cells.oz) * cells.uz), 0), cells.nz - 1)
+    return wall_near[(iz * cells.ny + iy) * cells.nx + ix] != 0
+
+
+@njit(cache=True, inline="always")
 def table_lookup(table, d, end):
     """Linear interpolation of a wall table sampled on d in [0, end]; 0 beyond, table[0] below 0."""
     if d >= end:
