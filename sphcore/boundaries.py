@@ -14,13 +14,12 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from sphcore.choices import Kernel, WallKind
 from sphcore.motion import FloatingBody, Motion
 from sphcore.physics.kernels import dw_dr, kernel_constants, w
 from sphcore.physics.open_boundary import ZONE_COLUMNS, ZONE_FAR, ZONE_INLET, ZONE_NONE, ZONE_OUTLET
-from sphcore.physics.walls import signed_distance
+from sphcore.physics.walls import flag_near_cells
 from sphcore.scene import Scene
 
 
@@ -379,7 +378,6 @@ def lattice_sum(kernel: Kernel, dim: int, H: float, dx: float) -> float:
 # 1-Lipschitz), on the grid's outer layer (a particle outside the grid is binned there), or when any
 # wall moves (the flags would have to follow it).
 NEAR_MARGIN = 1e-3   # of H, plus 1e-5 of the domain's extent: room for the run's rounding of d
-_MESH = int(WallKind.MESH_OUTSIDE)
 
 
 def near_wall_cells(walls: Walls, grid) -> np.ndarray:
@@ -391,38 +389,5 @@ def near_wall_cells(walls: Walls, grid) -> np.ndarray:
     origin, cell = grid.origin.astype(np.float64), grid.cell.astype(np.float64)
     extent = float(np.max(np.abs(np.concatenate([origin, origin + grid.ncell * cell]))))
     reach = H * (1.0 + NEAR_MARGIN) + 1e-5 * extent
-    _flag_cells(walls.kind, walls.data.astype(np.float64), origin, cell, grid.ncell, reach, near)
+    flag_near_cells(walls.kind, walls.data.astype(np.float64), origin, cell, grid.ncell, reach, near)
     return near
-
-
-@njit(cache=True)
-def _flag_cells(kinds, data, origin, cell, ncell, reach, near):
-    nx, ny, nz = ncell[0], ncell[1], ncell[2]
-    half = 0.5 * math.sqrt(cell[0] ** 2 + cell[1] ** 2 + cell[2] ** 2)
-    for c in range(nx * ny * nz):
-        ix, iy, iz = c % nx, (c // nx) % ny, c // (nx * ny)
-        if ((nx > 1 and (ix == 0 or ix == nx - 1)) or (ny > 1 and (iy == 0 or iy == ny - 1))
-                or (nz > 1 and (iz == 0 or iz == nz - 1))):
-            continue  # the outer layer stays flagged
-        cx = origin[0] + (ix + 0.5) * cell[0]
-        cy = origin[1] + (iy + 0.5) * cell[1]
-        cz = origin[2] + (iz + 0.5) * cell[2]
-        flag = 0
-        for q in range(kinds.shape[0]):
-            wd = data[q]
-            if kinds[q] == _MESH:  # its distance grid (sphcore.mesh_sdf layout), grown by H
-                span = 1.0 / wd[19]
-                inside = True
-                for d in range(3):
-                    centre = cx if d == 0 else (cy if d == 1 else cz)
-                    lo = wd[16 + d] - reach
-                    hi = wd[16 + d] + (wd[20 + d] - 1.0) * span + reach
-                    if centre + 0.5 * cell[d] < lo or centre - 0.5 * cell[d] > hi:
-                        inside = False
-                if inside:
-                    flag = 1
-                    break
-            elif signed_distance(kinds[q], wd, cx, cy, cz)[0] - half < reach:
-                flag = 1
-                break
-        near[c] = flag

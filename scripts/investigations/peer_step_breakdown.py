@@ -85,28 +85,25 @@ def main():
     scene = load_scene(DEFAULT_SCENE, _fixed(DEFAULT_SCENE, dx) + ["decomposition.balance_every=50"] + a.set)
     instrument()
     cluster = InProcessCluster(scene, 2, "f32")
-    for _ in range(50):
-        cluster.step()
-    T.clear()
-    t0 = time.perf_counter()
-    for _ in range(a.steps):
-        cluster.step()
-    wall = time.perf_counter() - t0
+    wall = timed_steps(cluster.step, a.steps)
     owned = [p.state.n_owned for p in cluster.peers]
     ghosts = [p.state.n - p.state.n_owned for p in cluster.peers]
     report(f"2 peers in one process: {wall / a.steps / 2 * 1e3:.2f} ms a step per peer (owned {owned}, "
            f"ghosts {ghosts}); per peer-step:", 2, a.steps)
-    sim = Simulation(scene, "f32")
-    for _ in range(50):
-        sim.step()
-    T.clear()
-    t0 = time.perf_counter()
-    for _ in range(a.steps):
-        sim.step()
-    wall = time.perf_counter() - t0
+    wall = timed_steps(Simulation(scene, "f32").step, a.steps)
     report(f"1 process: {wall / a.steps * 1e3:.2f} ms a step, half of it {wall / a.steps / 2 * 1e3:.2f}; "
            "per half-step:", 2, a.steps)
 
+
+def timed_steps(step, steps: int) -> float:
+    """Seconds for ``steps`` steps after 50 untimed ones (compiling, the first lists), the timers cleared."""
+    for _ in range(50):
+        step()
+    T.clear()
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        step()
+    return time.perf_counter() - t0
 
 if __name__ == "__main__":
     main()

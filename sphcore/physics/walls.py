@@ -404,3 +404,38 @@ def moving_wall_rate(kernel, prm, wall_kind, wall_data, wall_tables, wall_motion
                                            rho_i, theta)
         rate += gx * ux + gy * uy + gz * uz
     return rate
+
+
+@njit(cache=True)
+def flag_near_cells(kinds, data, origin, cell, ncell, reach, near):
+    """near[c] = 0 for every cell c off the grid's outer layer that no wall reaches within ``reach`` of
+    its centre plus its half-diagonal (boundaries.near_wall_cells says why; the rest stay 1)."""
+    nx, ny, nz = ncell[0], ncell[1], ncell[2]
+    half = 0.5 * math.sqrt(cell[0] ** 2 + cell[1] ** 2 + cell[2] ** 2)
+    for c in range(nx * ny * nz):
+        ix, iy, iz = c % nx, (c // nx) % ny, c // (nx * ny)
+        if ((nx > 1 and (ix == 0 or ix == nx - 1)) or (ny > 1 and (iy == 0 or iy == ny - 1))
+                or (nz > 1 and (iz == 0 or iz == nz - 1))):
+            continue  # the outer layer stays flagged
+        cx = origin[0] + (ix + 0.5) * cell[0]
+        cy = origin[1] + (iy + 0.5) * cell[1]
+        cz = origin[2] + (iz + 0.5) * cell[2]
+        flag = 0
+        for q in range(kinds.shape[0]):
+            wd = data[q]
+            if kinds[q] == 5:  # MESH_OUTSIDE:  # its distance grid (sphcore.mesh_sdf layout), grown by H
+                span = 1.0 / wd[19]
+                inside = True
+                for d in range(3):
+                    centre = cx if d == 0 else (cy if d == 1 else cz)
+                    lo = wd[16 + d] - reach
+                    hi = wd[16 + d] + (wd[20 + d] - 1.0) * span + reach
+                    if centre + 0.5 * cell[d] < lo or centre - 0.5 * cell[d] > hi:
+                        inside = False
+                if inside:
+                    flag = 1
+                    break
+            elif signed_distance(kinds[q], wd, cx, cy, cz)[0] - half < reach:
+                flag = 1
+                break
+        near[c] = flag
