@@ -1,7 +1,8 @@
 """Where does a peer's step go, against half of one process's? Two peers of the 3D dam break
 (49,152 particles, float32, 1 thread, the 2-peer benchmark's case) run in this one process, round
-robin over the in-process transport (nodes/cluster.py), so that each peer's kernels and numpy
-bookkeeping can be timed without the other process's noise; then one process alone. Wrapped and
+robin over the in-process transport (nodes/cluster.py; not rebalanced: in one process a peer's time
+is not its own), so that each peer's kernels and numpy bookkeeping can be timed without the other
+process's noise; then one process alone. Wrapped and
 timed: the list build, the sorts, each stage's launch (interior and boundary rows apart), the halo's
 state rebuilds and row packing. The halo's generator phases (exchange_positions, receive_ghosts,
 reduce_max) are timed inclusively and include the other peer's work: they are printed, not summed.
@@ -82,7 +83,7 @@ def main():
     a = ap.parse_args()
     numba.set_num_threads(1)
     dx = spacing_for(DEFAULT_SCENE, 49152)
-    scene = load_scene(DEFAULT_SCENE, _fixed(DEFAULT_SCENE, dx) + ["decomposition.balance_every=50"] + a.set)
+    scene = load_scene(DEFAULT_SCENE, _fixed(DEFAULT_SCENE, dx) + ["decomposition.balance_every=0"] + a.set)
     instrument()
     cluster = InProcessCluster(scene, 2, "f32")
     wall = timed_steps(cluster.step, a.steps)
