@@ -421,8 +421,8 @@ def _build_neighbours(periodic, x, n_query, contiguous, cell_begin, cell_end, or
     literally(periodic)
     for i in prange(n_query):
         # np.int64: numba types a prange index as uint64, and uint64 with int64 is float64 arithmetic
-        neighbour_row(periodic, True, np.int64(i), x, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell, reach,
-                      period, H2, nbr, counts)
+        neighbour_row(periodic, True, np.int64(i), x, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell,
+                      reach, period, H2, nbr, counts)
 
 
 @literal_dispatch(1)

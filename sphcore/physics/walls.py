@@ -50,6 +50,7 @@ import math
 
 from numba import njit
 
+from sphcore.grid import home_cell
 from sphcore.physics.kernels import dw_dr, w
 from sphcore.physics.real import like
 
@@ -152,10 +153,8 @@ def signed_distance(kind, wd, x, y, z):
 @njit(cache=True, inline="always")
 def near_wall(cells, wall_near, x, i):
     """Whether row i's grid cell is flagged as within reach of a wall (boundaries.near_wall_cells):
-    elsewhere every wall term is zero, and the passes skip them (the same cell as grid.home_cell)."""
-    ix = min(max(int((x[i, 0] - cells.ox) * cells.ux), 0), cells.nx - 1)
-    iy = min(max(int((x[i, 1] - cells.oy) * cells.uy), 0), cells.ny - 1)
-    iz = min(max(int((x[i, 2] - cells.oz) * cells.uz), 0), cells.nz - 1)
+    elsewhere every wall term is zero, and the passes skip them."""
+    ix, iy, iz, _, _, _, _, _, _ = home_cell(x, i, cells)
     return wall_near[(iz * cells.ny + iy) * cells.nx + ix] != 0
 
 
