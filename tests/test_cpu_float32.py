@@ -3,8 +3,9 @@
 tests/test_cuda.py counts float64 instructions in the PTX of every float32 kernel; the CPU drivers
 can go wrong where the PTX does not. numba types a ``prange`` index as uint64, and uint64 with int64
 is float64 arithmetic: the neighbour-list builder's ``j != i`` once converted every candidate j to
-float64 and compared it there (2026-12-05; the float32 list build took 19.0 ms against float64's
-16.1 ms on the 49k dam break, 15.1 ms once fixed). Cached machine code cannot be inspected, so the
+float64 and compared it there (2026-12-05; the float32 list build took 17.9-18.4 ms against
+float64's 14.9-15.0 ms on the 49k dam break, 14.7 ms once fixed: scripts/investigations/
+list_build_precision.py, docs/BENCHMARKS.md). Cached machine code cannot be inspected, so the
 kernels are compiled here afresh (no cache) from the same Python: the list builder's two drivers
 and the default scene's density and force drivers, the passes every step runs.
 
