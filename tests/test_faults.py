@@ -160,17 +160,33 @@ STEPS = "600"
 
 
 
+class Pid(int):
+    """A process id with the process's start time (clock ticks after boot), so that a later
+    process or thread given the same id (ids are reused: pid_max is 32768 here) is not taken
+    for it."""
+
+    def __new__(cls, pid: int, start: int):
+        self = super().__new__(cls, pid)
+        self.start = start
+        return self
+
+
+def _stat(pid) -> list[str]:
+    """/proc/PID/stat's fields from the state on (field 3 of proc(5) is index 0)."""
+    return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+
+
 def processes():
-    """pid -> (parent pid, argv) of every process of this machine."""
+    """Pid -> (parent pid, argv) of every process of this machine."""
     out = {}
     for entry in Path("/proc").iterdir():
         if entry.name.isdigit():
             try:
-                stat = (entry / "stat").read_text()
+                stat = _stat(entry.name)
                 argv = [a.decode() for a in (entry / "cmdline").read_bytes().split(b"\0")]
             except OSError:
                 continue
-            out[int(entry.name)] = (int(stat.rsplit(")", 1)[1].split()[1]), argv)
+            out[Pid(int(entry.name), int(stat[19]))] = (int(stat[1]), argv)
     return out
 
 
@@ -201,11 +217,13 @@ def wait_peers(pid, n, exclude=(), timeout=60):
     raise AssertionError(f"{n} peers not started: {descendants(pid)}")
 
 
-def gone(pid) -> bool:
+def gone(pid: Pid) -> bool:
+    """Whether process ``pid`` has exited (a zombie, or its id now names another process)."""
     try:
-        return "zombie" in Path(f"/proc/{pid}/status").read_text().lower()
+        stat = _stat(pid)
     except OSError:
         return True
+    return stat[0] == "Z" or int(stat[19]) != pid.start
 
 
 def wait_checkpoint(out, at_least, proc, timeout=120):
