@@ -44,6 +44,7 @@ Rerun entities (timelines ``step`` and ``sim_time``):
                                             composite latency, dropped frames (recording; live)
     domain, container, obstacles/<i> (static)   the domain box and the walls as meshes
     inlets/<i>, outlets/<i> (static)        the open boundaries' zones as boxes (green in, orange out)
+    damping_zones/<i> (static)              the damping zones as boxes (blue)
     info, legend                            the scene's physical parameters (updated after control set),
                                             the colouring and its range
 """
@@ -183,7 +184,7 @@ def blueprint(scene, world: int, camera=None):
                                 eye_up=list(camera.up))
     view3d = rrb.Spatial3DView(name="3D (drag to orbit)", origin="/",
                                contents=["/domain", "/container/**", "/obstacles/**", "/inlets/**", "/outlets/**",
-                                         "/fluid/**", "/camera/**"],
+                                         "/damping_zones/**", "/fluid/**", "/camera/**"],
                                **({"eye_controls": eye} if eye is not None else {}))
     plots = rrb.Tabs(
         rrb.TimeSeriesView(name="Stage ms per peer", origin="/stats/stage_ms"),
@@ -276,11 +277,13 @@ class Viewer:
         lo, hi = self.renderer.box
         rec.send_blueprint(blueprint(scene, world, self.renderer.camera))
         rec.log("domain", rr.Boxes3D(mins=[lo], sizes=[hi - lo], colors=[[200, 200, 200]]), static=True)
-        for name, zones, colour in (("inlets", scene.inlets, [80, 200, 120]), ("outlets", scene.outlets, [230, 120, 60])):
-            for i, z in enumerate(zones):  # the open boundaries' zones (sphcore/open_boundary.py)
+        for name, zones, colour, label in (("inlets", scene.inlets, [80, 200, 120], "inlet"),
+                                           ("outlets", scene.outlets, [230, 120, 60], "outlet"),
+                                           ("damping_zones", scene.damping_zones, [90, 140, 230], "damping")):
+            for i, z in enumerate(zones):  # the open boundaries' zones (sphcore/open_boundary.py), the damping zones
                 zmin, zmax = np.array(z.min, dtype=float), np.array(z.max, dtype=float)
                 rec.log(f"{name}/{i}", rr.Boxes3D(mins=[zmin], sizes=[zmax - zmin], colors=[colour],
-                                                  labels=[f"{name[:-1]} {i}"]), static=True)
+                                                  labels=[f"{label} {i}"]), static=True)
         try:
             for name, mesh in wall_meshes(scene).items():
                 rec.log(name, mesh, static=True)

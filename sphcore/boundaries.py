@@ -18,6 +18,7 @@ import numpy as np
 from sphcore.choices import Kernel, WallKind
 from sphcore.motion import FloatingBody, Motion
 from sphcore.physics.kernels import dw_dr, kernel_constants, w
+from sphcore.physics.damping import DAMPING_COLUMNS
 from sphcore.physics.open_boundary import ZONE_COLUMNS, ZONE_FAR, ZONE_INLET, ZONE_NONE, ZONE_OUTLET
 from sphcore.physics.walls import flag_near_cells
 from sphcore.scene import Scene
@@ -50,6 +51,7 @@ class Walls:
     moves: tuple = ()       # (wall row, motion.Motion or motion.FloatingBody) of the walls that move
     rest: np.ndarray | None = None  # (nw, 16+) float64: the rows at t = 0
     zones: np.ndarray | None = None  # (nz, 10) float: inlet and outlet zones (physics/open_boundary.py)
+    damping: np.ndarray | None = None  # (nd, 10) float: damping zones (physics/damping.py)
     near: np.ndarray | None = None   # (grid cells,) uint8: 1 where a wall may be within H (near_wall_cells)
     t: float = math.nan     # the time the rows and motion are at (s); none yet: moved before the first step
 
@@ -115,6 +117,19 @@ def zone_rows(scene: Scene, dtype) -> np.ndarray:
             hi = [z.max[d] if d < scene.dim else ZONE_FAR for d in range(3)]
             rows.append([kind, *lo, *hi, *(z.velocity if kind == ZONE_INLET else (z.pressure, 0.0, 0.0))])
     return np.array(rows or [[ZONE_NONE] + [0.0] * (ZONE_COLUMNS - 1)], dtype=dtype).reshape(-1, ZONE_COLUMNS)
+
+
+def damping_rows(scene: Scene, dtype) -> np.ndarray:
+    """The [[damping_zones]] as wall_damping rows (physics/damping.py); one padding row (rate 0, an
+    empty box) when there are none, so that every backend has an array to pass."""
+    rows = []
+    for z in scene.damping_zones:
+        axis = next(d for d in range(scene.dim) if z.direction[d] != 0.0)
+        start, end = (z.min[axis], z.max[axis]) if z.direction[axis] > 0.0 else (z.max[axis], z.min[axis])
+        lo = [z.min[d] if d < scene.dim else -ZONE_FAR for d in range(3)]
+        hi = [z.max[d] if d < scene.dim else ZONE_FAR for d in range(3)]
+        rows.append([*lo, *hi, start, 1.0 / (end - start), axis, z.rate])
+    return np.array(rows or [[0.0] * DAMPING_COLUMNS], dtype=dtype).reshape(-1, DAMPING_COLUMNS)
 
 
 def build_walls(scene: Scene, kernel: Kernel, H: float, dtype) -> Walls:
@@ -198,6 +213,7 @@ def build_walls(scene: Scene, kernel: Kernel, H: float, dtype) -> Walls:
         moves=tuple((q, m) for q, m in moving if m is not None),
         rest=_pad_rows(rows, np.float64),
         zones=zone_rows(scene, dtype),
+        damping=damping_rows(scene, dtype),
     )
 
 

@@ -53,7 +53,7 @@ class Model:
     gradient_moment (boundaries.lattice_gradient_moment); walls; mass (kg per particle); host_grid,
     grid_lo (float64 origin), lo (origin in the run's dtype), periodic (0/1); nu (m^2/s, 0 without a
     physical viscosity); prm (params.Params); the flags dfsph, pair_gradients (DFSPH reads stored
-    grad W_ij), continuity, use_xsph, use_shifting, use_drift, use_vorticity, use_diffusion; force_terms ((stage, scene value)
+    grad W_ij), continuity, use_xsph, use_shifting, use_drift, use_vorticity, use_diffusion, use_damping; force_terms ((stage, scene value)
     of stages.FORCE_TERMS that are on); extra_names (the arrays carried in state.extra)."""
 
     def __init__(self, scene: Scene, precision: str | None = None, backend: str = "cpu"):
@@ -114,6 +114,7 @@ class Model:
         self.force_terms = tuple((term, scene_value(scene, term.key)) for term in st.FORCE_TERMS
                                  if scene_value(scene, term.key) > 0.0)
         self.use_vorticity = terms.vorticity_confinement > 0.0
+        self.use_damping = bool(scene.damping_zones)
         self.continuity = sph.density == "continuity"
         self.use_diffusion = self.continuity and sph.delta > 0.0
         # per-particle arrays that follow their particle (ParticleState.extra): the solver's (DFSPH's

@@ -440,19 +440,33 @@ class Outlet:
                                 "leaves against it", range=(-math.inf, math.inf))
 
 
+@dataclass(frozen=True)
+class DampingZone:
+    min: tuple = spec((0.0, 0.0, 0.0), "the zone, a box: lower corner (m); particles in it are slowed by a_i -= k v_i",
+                      length=VEC, position=True)
+    max: tuple = spec((0.0, 0.0, 0.0), "the zone: upper corner (m)", length=VEC, position=True)
+    direction: tuple = spec((1.0, 0.0, 0.0), "a unit vector along x, y or z: k grows along it, from 0 at the face the "
+                                             "waves enter by to rate at the far face (k = rate s^2)", length=VEC)
+    rate: float = spec(0.0, "k at the zone's far face (1/s; > 0): rate x time.dt must stay below 1, and a wave "
+                            "of angular frequency omega is spent over a zone a wavelength long at rate of a few omega",
+                       range=(0.0, 1e9), min_exclusive=True)
+
+
 SECTIONS: dict[str, type] = {
     "scene": SceneInfo, "particles": Particles, "fluid": Fluid, "sph": SPH, "terms": Terms, "forces": Forces,
     "time": Time, "domain": Domain, "obstacles": Obstacle, "boundary": Boundary, "run": Run,
     "decomposition": DecompositionSection, "render": Render, "output": Output, "probes": Probe,
-    "inlets": Inlet, "outlets": Outlet,
+    "inlets": Inlet, "outlets": Outlet, "damping_zones": DampingZone,
 }
 LIST_ITEMS: dict[str, type] = {"fluid.blocks": Block, "domain.planes": Plane, "obstacles": Obstacle,
-                               "render.cameras": RenderCamera, "probes": Probe, "inlets": Inlet, "outlets": Outlet}
+                               "render.cameras": RenderCamera, "probes": Probe, "inlets": Inlet, "outlets": Outlet,
+                               "damping_zones": DampingZone}
 # why the keys of a section (or of an array of tables) declared without ``control`` cannot change
 # during a run
 SECTION_CONTROL = {"scene": AT_START, "domain": WORLD, "obstacles": WORLD, "decomposition": PEERS,
                    "render": VIEWER, "output": OUTPUT, "fluid.blocks": PARTICLES, "domain.planes": WORLD,
-                   "render.cameras": VIEWER, "probes": PROBES, "inlets": OPEN, "outlets": OPEN}
+                   "render.cameras": VIEWER, "probes": PROBES, "inlets": OPEN, "outlets": OPEN,
+                   "damping_zones": WORLD}
 
 
 @dataclass(frozen=True)
@@ -474,6 +488,7 @@ class Scene:
     probes: tuple = ()
     inlets: tuple = ()
     outlets: tuple = ()
+    damping_zones: tuple = ()
     source: str = ""
     # where the run's coordinates start, in world coordinates (m): every position key holds
     # world - origin (``localised``); not a key, it follows from the domain
@@ -782,6 +797,9 @@ def scene_from_dict(data: dict, source: str = "", backend: str = "cpu") -> Scene
                                         ', e.g. name = "p1", at = [0.5, 0.1]')
         elif name in ("inlets", "outlets"):
             parts[name] = _build_tables(cls, name, data.get(name, []), ("min", "max"), ", the corners of its zone")
+        elif name == "damping_zones":
+            parts[name] = _build_tables(cls, name, data.get(name, []), ("min", "max", "direction", "rate"),
+                                        ", e.g. min = [1, 0], max = [2, 0.3], direction = [1, 0], rate = 20")
         else:
             parts[name] = _build(cls, data.get(name, {}), name)
     scene = Scene(**parts, source=source)
@@ -1014,6 +1032,7 @@ def _check_combinations(s: Scene, files: bool = True, backend: str = "cpu") -> S
         raise SceneError(f"time.dt = {s.time.dt!r}: must be positive")
     _check_probes(s)
     _check_open_boundaries(s)
+    _check_damping_zones(s)
     if files:
         _check_resources(s, backend=backend)
     return s
@@ -1141,11 +1160,11 @@ def _build_tables(cls, name: str, raw, required: tuple, hint: str) -> tuple:
 
 
 def _axis_of(s: Scene, key: str, vec) -> int:
-    """The one axis ``vec`` lies along (an open boundary's flow), or SceneError."""
+    """The one axis ``vec`` lies along (an open boundary's flow, a damping zone's direction), or SceneError."""
     along = [d for d in range(s.dim) if vec[d] != 0.0]
     if len(along) != 1 or any(vec[s.dim:]):
-        raise SceneError(f"{key} = {list(vec[: s.dim])!r}: must lie along one axis (one nonzero component; open "
-                         "boundaries are axis-aligned boxes)")
+        raise SceneError(f"{key} = {list(vec[: s.dim])!r}: must lie along one axis (one nonzero component; the "
+                         "zones are axis-aligned boxes)")
     return along[0]
 
 
@@ -1158,12 +1177,7 @@ def _check_open_boundaries(s: Scene):
     if not zones:
         return
     H = s.sph.support * s.particles.spacing
-    dom = s.domain
-    if dom.container == "none":
-        lo, hi = dom.bounds_min, dom.bounds_max
-    else:
-        half = [0.5 * e for e in _domain_extent(s)]
-        lo, hi = [c - h for c, h in zip(dom.center, half)], [c + h for c, h in zip(dom.center, half)]
+    lo, hi = _domain_box(s)
     slack = 1e-9 * max(_domain_extent(s)[: s.dim])
     boxes = []
     for name, i, z in zones:
@@ -1197,6 +1211,44 @@ def _check_open_boundaries(s: Scene):
     if s.sph.solver != "wcsph":
         raise SceneError(f"{zones[0][0]}[{zones[0][1]}]: inlets and outlets need sph.solver = 'wcsph' (DFSPH's "
                          "solves do not impose the zones' velocities)")
+
+
+def _domain_box(s: Scene) -> tuple[list, list]:
+    """The domain's axis-aligned box (lo, hi), in the run's coordinates (m)."""
+    dom = s.domain
+    if dom.container == "none":
+        return list(dom.bounds_min), list(dom.bounds_max)
+    half = [0.5 * e for e in _domain_extent(s)]
+    return [c - h for c, h in zip(dom.center, half)], [c + h for c, h in zip(dom.center, half)]
+
+
+def _check_damping_zones(s: Scene):
+    """[[damping_zones]] (physics/damping.py): boxes of the scene's dimension inside the domain's
+    box, a direction along one axis, and a rate the largest step integrates stably (v (1 - k dt)
+    must not turn v around: rate x time.dt < 1)."""
+    if not s.damping_zones:
+        return
+    lo, hi = _domain_box(s)
+    slack = 1e-9 * max(_domain_extent(s)[: s.dim])
+    for i, z in enumerate(s.damping_zones):
+        key = f"damping_zones[{i}]"
+        if s.dim == 2 and (z.min[2] or z.max[2]):
+            raise SceneError(f"{key}: min and max z must be 0 in a 2D scene")
+        if any(z.max[d] <= z.min[d] for d in range(s.dim)):
+            raise SceneError(f"{key}.max = {list(z.max[: s.dim])!r}: must exceed {key}.min = {list(z.min[: s.dim])!r} "
+                             "on every axis")
+        if any(z.min[d] < lo[d] - slack or z.max[d] > hi[d] + slack for d in range(s.dim)):
+            raise SceneError(f"{key}: the zone {list(z.min[: s.dim])!r} .. {list(z.max[: s.dim])!r} reaches outside the "
+                             f"domain's box {[round(v, 12) for v in lo[: s.dim]]!r} .. "
+                             f"{[round(v, 12) for v in hi[: s.dim]]!r}")
+        axis = _axis_of(s, f"{key}.direction", z.direction)
+        if abs(z.direction[axis]) != 1.0:
+            raise SceneError(f"{key}.direction = {list(z.direction[: s.dim])!r}: must be a unit vector along one axis, "
+                             f"e.g. [1, 0{', 0' if s.dim == 3 else ''}]")
+        if z.rate * s.time.dt >= 1.0:
+            raise SceneError(f"{key}.rate = {z.rate!r}: rate x time.dt = {z.rate * s.time.dt:g} must be below 1 (the "
+                             f"largest step, time.dt = {s.time.dt:g} s, would turn the velocity around); lower the "
+                             "rate or time.dt")
 
 
 def _check_probes(s: Scene):

@@ -38,7 +38,7 @@ MODEL_PARTS = {
     "choices": "a compile-time choice", "kernel": "the kernel", "eos": "the EOS", "viscosity": "the viscosity model",
     "integrator": "the integrator", "use_xsph": "the XSPH stage", "use_shifting": "the shifting stage",
     "use_drift": "the drift", "use_vorticity": "the vorticity stages", "use_diffusion": "the delta-SPH stage",
-    "continuity": "the density scheme", "dfsph": "the solver", "extra_names": "the carried arrays",
+    "use_damping": "the damping stage", "continuity": "the density scheme", "dfsph": "the solver", "extra_names": "the carried arrays",
     "force_terms": "the force-term stages", "walls": "the walls", "host_grid": "the grid", "grid_lo": "the grid",
     "lo": "the grid", "periodic": "the periodic axes", "dx": "the spacing", "H": "the support radius",
     "h": "the support radius", "gradient_moment": "the kernel gradient", "precision": "the precision",
@@ -400,7 +400,7 @@ class Simulation:
 
     def _accelerations(self, halo, prm):
         """a of the owned rows from every force term the scene enables (pressure, viscosity, body
-        forces, walls; surface tension; vorticity confinement), and the delta-SPH density rate; a
+        forces, walls; surface tension; vorticity confinement; damping zones), and the delta-SPH density rate; a
         peer computes its interior rows while exchange 2 travels."""
         f = self.dtype.type
         enabled = {st.FORCES: {}, **({st.DIFFUSION: {}} if self.use_diffusion else {}),
@@ -416,6 +416,8 @@ class Simulation:
             halo.send_ghosts(self, "omega", ("omega",))            # ghosts' omega    (exchange 3)
             yield from self._overlapped(halo, "omega", lambda rows, wait: self._run(  # omega -> a (+=)
                 st.CONFINEMENT, prm=prm, rows=rows, wait=wait))
+        if self.use_damping:
+            self._run(st.DAMPING)                                  # damping zones: a -= k(x) v
 
     def _sort_ghosts(self):
         with self.timers("grid"):

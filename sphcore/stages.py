@@ -27,6 +27,7 @@ from types import MappingProxyType
 
 from sphcore.choices import EOS, Integrator, Kernel, Viscosity
 from sphcore.grid import CELL_WALK, NEIGHBOUR_LISTS
+from sphcore.physics.damping import damping_row
 from sphcore.physics.continuity import density_update_row, diffusion_row
 from sphcore.physics.density import density_row
 from sphcore.physics.dfsph import dfsph_factor_row, dfsph_finish_row, dfsph_kick_row, dfsph_source_row, dfsph_update_row
@@ -91,6 +92,8 @@ ARGUMENTS = MappingProxyType({
     "wall_motion": ("table", "each wall's velocity [0:3] (m/s), acceleration [3:6] (m/s^2), angular velocity [6:9] "
                              "(rad/s) and acceleration [9:12] (rad/s^2) about its pivot [12:15] (m), now (motion.py)"),
     "wall_zones": ("table", "inlet and outlet zones: [kind, lo (3), hi (3), U (3)] (physics/open_boundary.py)"),
+    "wall_damping": ("table", "damping zones: [lo (3), hi (3), start, 1 / (end - start), axis, rate] "
+                              "(physics/damping.py)"),
     "wall_near": ("cell_flags", "1 for every grid cell a wall may reach within H (boundaries.near_wall_cells): "
                                 "only its particles evaluate the walls' terms (physics/walls.near_wall)"),
     "lo": ("row", "the grid origin (3,) (m): periodic wrapping"),
@@ -228,6 +231,7 @@ DRAG = Stage("drag", drag_row, writes=("a",), key="terms.drag").check()
 WALL_FRICTION = Stage("wall_friction", wall_friction_row, writes=("a",), key="terms.wall_friction").check()
 VORTICITY = Stage("vorticity", vorticity_row, writes=("omega",)).check()
 CONFINEMENT = Stage("confinement", confinement_row, writes=("a",)).check()
+DAMPING = Stage("damping", damping_row, writes=("a",)).check()
 XSPH = Stage("xsph", xsph_row, writes=("dv",)).check()
 SHIFTING = Stage("shifting", shifting_row, writes=("dv",)).check()
 OPEN_BOUNDARY = Stage("open_boundary", open_boundary_row, writes=("v", "a", "dv")).check()
@@ -269,7 +273,7 @@ def overlap_group(*group: Stage) -> tuple:
 # What runs while exchange 2 (the ghosts' rho, p) travels: the accelerations the scene enables, in order
 ACCELERATIONS = overlap_group(FORCES, DIFFUSION, *FORCE_TERMS)
 
-STAGES = (DENSITY, OUTLET_PRESSURE, DFSPH_FACTOR, FORCES, DIFFUSION, *FORCE_TERMS, VORTICITY, CONFINEMENT, XSPH, SHIFTING,
+STAGES = (DENSITY, OUTLET_PRESSURE, DFSPH_FACTOR, FORCES, DIFFUSION, *FORCE_TERMS, VORTICITY, CONFINEMENT, DAMPING, XSPH, SHIFTING,
           OPEN_BOUNDARY, STATISTICS, DFSPH_KICK, DFSPH_SOURCE, DFSPH_UPDATE, DFSPH_FINISH, DENSITY_UPDATE, INTEGRATE, BOUNDARIES,
           BODY_REACTION, ENERGY)
 

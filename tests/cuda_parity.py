@@ -41,6 +41,12 @@ SHORT_CHANNEL = ("fluid.blocks[0].max=[2e-2, 1e-2]", "domain.bounds_max=[2e-2, 1
                  "outlets[0].max=[2e-2, 1e-2]")
 
 
+# wave_maker_2d.toml shortened from 2 to 0.5 m (125 particles at 2 cm): the damping zone over its far 0.3 m
+SHORT_FLUME = ("particles.spacing=0.02", "fluid.blocks[0].max=[0.5, 0.1]", "domain.bounds_max=[0.5, 0.25]",
+               "domain.planes[1].point=[0.5, 0.0]", "damping_zones[0].min=[0.2, 0.0]",
+               "damping_zones[0].max=[0.5, 0.25]")
+
+
 def _scales(sim):
     s = sim.state
     n = s.n_owned
@@ -202,6 +208,8 @@ CASES = {
     "rotating_f64": lambda: steps_case(scene("circular_couette_2d.toml", "particles.spacing=2e-4"), "f64", 3),
     # inlets and outlets (open_boundary.py): a layer enters, rows leave, on the device as on the CPU
     "open_f64": lambda: open_case(scene("channel_2d.toml", "particles.spacing=1e-3", *SHORT_CHANNEL), "f64", 6),
+    # a damping zone (physics/damping.py) beside a moving piston: a -= k(x) v
+    "damping_f64": lambda: steps_case(scene("wave_maker_2d.toml", *SHORT_FLUME), "f64", 3),
     "walk_dfsph_peers_f64": lambda: peers_case(tiny("run.neighbours='walk'", "sph.solver='dfsph'",
                                                      "time.dt=0.002"), "f64", 2),
 }

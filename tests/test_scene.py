@@ -343,7 +343,8 @@ def test_to_dict_is_complete_and_plain():
     d = load_scene(CONFIGS / "tiny.toml").to_dict()
     assert "source" not in d
     assert set(d) == {"scene", "particles", "fluid", "sph", "terms", "forces", "time", "domain", "obstacles",
-                      "boundary", "run", "decomposition", "render", "output", "probes", "inlets", "outlets"}
+                      "boundary", "run", "decomposition", "render", "output", "probes", "inlets", "outlets",
+                      "damping_zones"}
     assert d["sph"]["eos"] == "tait" and d["boundary"]["gap"] == 0.25  # defaults are resolved
     assert d["forces"]["gravity"] == [0.0, -9.81, 0.0]  # lists, not tuples
     assert len(d["fluid"]["blocks"]) == 2 and d["fluid"]["blocks"][1]["shape"] == "sphere"

@@ -621,6 +621,7 @@ class CudaStages(Engine):
                       "wall_tables": cuda.to_device(np.ascontiguousarray(w.tables)),
                       "wall_motion": cuda.to_device(np.ascontiguousarray(w.motion)),
                       "wall_zones": cuda.to_device(np.ascontiguousarray(w.zones)),
+                      "wall_damping": cuda.to_device(np.ascontiguousarray(w.damping)),
                       "wall_near": cuda.to_device(np.ascontiguousarray(w.near)),
                       "lo": cuda.to_device(sim.model.lo)}
         # a stage's reduced values (stages.REDUCTIONS): the integer kinds, and the real maxima
