@@ -1,13 +1,14 @@
 """sph validate wave_maker's pieces: the dispersion relation's wavenumber, the piston's transfer
-function in its shallow and deep limits, and the harmonic fit that reads a gauge's wave height and
-phase through noise and a steeper crest. (The case itself runs in `sph validate wave_maker`: two
+function in its shallow and deep limits, the harmonic fit that reads a gauge's wave height and
+phase through noise and a steeper crest, and the two-gauge split into incident and reflected waves. (The case itself runs in `sph validate wave_maker`: two
 minutes quick.)"""
 import math
 
 import numpy as np
 import pytest
 
-from launch.validate import CONFIGS, PistonWave, harmonic, piston_height_per_stroke, water_wavenumber
+from launch.validate import (CONFIGS, PistonWave, harmonic, incident_and_reflected, piston_height_per_stroke,
+                             water_wavenumber)
 from sphcore.scene import load_scene
 
 
@@ -59,3 +60,25 @@ def test_the_scene_is_the_case_the_theory_describes():
     assert wave.height == pytest.approx(0.015 * piston_height_per_stroke(wave.k * wave.depth))
     assert 9.81 * wave.k * math.tanh(wave.k * wave.depth) == pytest.approx(wave.omega ** 2)
     assert [p.kind for p in scene.probes] == ["height", "height"]
+
+
+@pytest.mark.fast
+@pytest.mark.parametrize("reflected, lag", [(0.0, 0.0), (0.2, 0.7), (0.9, 2.5)])
+def test_two_gauges_split_a_partial_standing_wave_into_its_incident_and_reflected_parts(reflected, lag):
+    omega, t = 2.0 * math.pi * 1.4, np.arange(0.0, 4.0 / 1.4, 1e-3)
+    k, gauges = water_wavenumber(omega, 0.1, 9.81), (0.3, 0.5)
+    fits = [harmonic(t, 0.0075 * np.cos(omega * t - k * x) + 0.0075 * reflected * np.cos(omega * t + k * x + lag),
+                     omega) for x in gauges]
+    incident, back = incident_and_reflected(fits, gauges, k)
+    assert incident == pytest.approx(0.0075, rel=1e-9)
+    assert back == pytest.approx(0.0075 * reflected, abs=1e-12)
+
+
+@pytest.mark.fast
+def test_the_flume_ends_in_a_damping_zone_behind_both_gauges():
+    scene = load_scene(CONFIGS / "wave_maker_2d.toml")
+    (zone,) = scene.damping_zones
+    wave = PistonWave.of(scene)
+    assert zone.direction[0] == 1.0 and zone.max[0] == scene.domain.planes[1].point[0]  # up to the far wall
+    assert zone.max[0] - zone.min[0] >= 2 * math.pi / wave.k  # at least a wavelength long
+    assert all(p.at[0] < zone.min[0] for p in scene.probes)
