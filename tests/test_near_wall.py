@@ -1,5 +1,6 @@
-"""The near-wall cell flags (boundaries.near_wall_cells): the density and force passes evaluate the
-walls' terms only for particles in a flagged cell, since elsewhere they are zero. A missing flag would
+"""The near-wall cell flags (boundaries.near_wall_cells): the density and force passes (the walls'
+density share and push, the carried density's wall rate, the Morris no-slip wall) and shifting
+evaluate the walls' terms only for particles in a flagged cell, since elsewhere they are zero. A missing flag would
 silently drop a wall's push, so the flags are checked against the walls themselves, and a run with
 them against a run with every cell flagged, bit for bit."""
 import numpy as np
@@ -60,10 +61,23 @@ def test_every_point_a_wall_reaches_lies_in_a_flagged_cell(name):
         assert flagged[~reached].mean() < 0.9, name
 
 
-@pytest.mark.parametrize("name", ["dam_break", "obstacle", "mesh_obstacle"])
+# every term the flags gate: the walls' density share and push (all), the carried density's wall rate
+# (continuity), the DFSPH factor's wall gradient, the Morris no-slip wall, shifting's wall share
+RUNS = {
+    "dam_break": ("dam_break", *SCENES["dam_break"]),
+    "obstacle": ("obstacle",),
+    "mesh_obstacle": ("mesh_obstacle",),
+    "continuity": ("dam_break_pressure_2d", "particles.spacing=0.03"),
+    "dfsph": ("dam_break_2d", "particles.spacing=0.02", "sph.solver='dfsph'"),
+    "morris": ("poiseuille_2d",),
+    "shifting": ("dam_break_2d", "particles.spacing=0.02", "terms.shifting=1.0"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(RUNS))
 def test_a_run_with_the_flags_equals_one_that_evaluates_every_wall(name):
-    a = Simulation(scene(name, *SCENES[name]), "f32")
-    b = Simulation(scene(name, *SCENES[name]), "f32")
+    a = Simulation(scene(*RUNS[name]), "f32")
+    b = Simulation(scene(*RUNS[name]), "f32")
     b.model.walls.near = np.ones_like(b.model.walls.near)
     cells = a.grid.cells_of(a.state.x[:a.state.n_owned])
     index = (cells[:, 2] * a.grid.ncell[1] + cells[:, 1]) * a.grid.ncell[0] + cells[:, 0]

@@ -60,7 +60,8 @@ def density_row(kernel, eos, periodic, neighbours, pair_gradients, continuity, p
     # the walls' density share: geometry only (no frame: the motion argument, here wall_tables, is not read);
     # zero, and not evaluated, in a cell no wall reaches
     drho = like(rho_i, 0.0)
-    if near_wall(cells, wall_near, x, i):
+    near = near_wall(cells, wall_near, x, i)
+    if near:
         drho, _, _, _ = wall_terms(kernel, prm, False, wall_kind, wall_data, wall_tables, wall_tables, False,
                                    x[i, 0], x[i, 1], x[i, 2], like(rho_i, 0.0), rho_i, like(rho_i, 0.0),
                                    like(rho_i, 0.0), like(rho_i, 0.0))
@@ -72,11 +73,13 @@ def density_row(kernel, eos, periodic, neighbours, pair_gradients, continuity, p
             rho_c[i] = prm.rho0
             rho_i = rho_c[i]
         else:
-            # the wall's share theta rho0 Phi(d) changes at its gradient . (v_i - u_wall)
+            # the wall's share theta rho0 Phi(d) changes at its gradient . (v_i - u_wall); zero where no
+            # wall reaches (every cell is flagged when a wall moves)
             r = rho_c[i]
-            wx, wy, wz = wall_density_gradient(kernel, prm, wall_kind, wall_data, wall_tables, x, i, r, theta)
-            rate += wx * v[i, 0] + wy * v[i, 1] + wz * v[i, 2]
-            rate -= moving_wall_rate(kernel, prm, wall_kind, wall_data, wall_tables, wall_motion, x, i, r, theta)
+            if near:
+                wx, wy, wz = wall_density_gradient(kernel, prm, wall_kind, wall_data, wall_tables, x, i, r, theta)
+                rate += wx * v[i, 0] + wy * v[i, 1] + wz * v[i, 2]
+                rate -= moving_wall_rate(kernel, prm, wall_kind, wall_data, wall_tables, wall_motion, x, i, r, theta)
             rho_i = r + dt_prev * rate
             if commit:
                 rho_c[i] = rho_i

@@ -56,13 +56,14 @@ def acceleration_row(kernel, viscosity, periodic, neighbours, prm, i, x, v, m, r
                 ax += g * (v[i, 0] - v[j, 0])
                 ay += g * (v[i, 1] - v[j, 1])
                 az += g * (v[i, 2] - v[j, 2])
-    if near_wall(cells, wall_near, x, i):  # elsewhere the walls' terms are zero
+    near = near_wall(cells, wall_near, x, i)
+    if near:  # elsewhere the walls' terms are zero
         _, wx, wy, wz = wall_terms(kernel, prm, True, wall_kind, wall_data, wall_tables, wall_motion, True,
                                    x[i, 0], x[i, 1], x[i, 2], p_i, rho_i, bx, by, bz)
         ax += fill[i] * wx
         ay += fill[i] * wy
         az += fill[i] * wz
-    if viscosity == 3:  # Viscosity.MORRIS: no-slip walls
+    if viscosity == 3 and near:  # Viscosity.MORRIS: no-slip walls (none within reach elsewhere)
         kv, ux, uy, uz = wall_viscosity(prm, wall_kind, wall_data, wall_tables, wall_motion, x[i, 0], x[i, 1],
                                         x[i, 2], rho_i)
         ax += fill[i] * (kv * v[i, 0] - ux)

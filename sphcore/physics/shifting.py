@@ -33,7 +33,7 @@ from numba import njit
 import math
 from sphcore.physics.kernels import dw_dr_over_r, w
 from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
-from sphcore.physics.walls import wall_density_gradient, wall_terms
+from sphcore.physics.walls import near_wall, wall_density_gradient, wall_terms
 from sphcore.physics.real import like
 
 SURFACE_CONCENTRATION = 0.9  # C_i below this marks a particle of the free-surface layer
@@ -47,7 +47,7 @@ def concentration_gradient_pair(m_j, rho0, dw_over_r):
 
 @njit(cache=True, inline="always")
 def shifting_row(kernel, periodic, neighbours, add, prm, i, x, v, m, rho, nbr, counts, cells, cell_begin, cell_end,
-                 wall_kind, wall_data, wall_tables, dv):
+                 wall_kind, wall_data, wall_tables, wall_near, dv):
     """Particle shifting as a drift velocity, -A h |v_i| grad C_i, the walls' share in C and its
     gradient, none in a free surface's layer (shifting.py); added to dv if ``add`` (XSPH wrote it),
     else written."""
@@ -70,7 +70,8 @@ def shifting_row(kernel, periodic, neighbours, add, prm, i, x, v, m, rho, nbr, c
             gx += f * dx
             gy += f * dy
             gz += f * dz
-    if wall_kind.shape[0] > 0:  # the walls' share of C, Phi(d_i) (a full wall's: theta = 1), and its gradient
+    # the walls' share of C, Phi(d_i) (a full wall's: theta = 1), and its gradient; zero where no wall reaches
+    if wall_kind.shape[0] > 0 and near_wall(cells, wall_near, x, i):
         zero = like(prm.H, 0.0)
         share, _, _, _ = wall_terms(kernel, prm, False, wall_kind, wall_data, wall_tables, wall_tables, False,
                                     x[i, 0], x[i, 1], x[i, 2], zero, rho[i], zero, zero, zero)
