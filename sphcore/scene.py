@@ -1177,20 +1177,10 @@ def _check_open_boundaries(s: Scene):
     if not zones:
         return
     H = s.sph.support * s.particles.spacing
-    lo, hi = _domain_box(s)
-    slack = 1e-9 * max(_domain_extent(s)[: s.dim])
     boxes = []
     for name, i, z in zones:
         key = f"{name}[{i}]"
-        if s.dim == 2 and (z.min[2] or z.max[2]):
-            raise SceneError(f"{key}: min and max z must be 0 in a 2D scene")
-        if any(z.max[d] <= z.min[d] for d in range(s.dim)):
-            raise SceneError(f"{key}.max = {list(z.max[: s.dim])!r}: must exceed {key}.min = {list(z.min[: s.dim])!r} "
-                             "on every axis")
-        if any(z.min[d] < lo[d] - slack or z.max[d] > hi[d] + slack for d in range(s.dim)):
-            raise SceneError(f"{key}: the zone {list(z.min[: s.dim])!r} .. {list(z.max[: s.dim])!r} reaches outside the "
-                             f"domain's box {[round(v, 12) for v in lo[: s.dim]]!r} .. "
-                             f"{[round(v, 12) for v in hi[: s.dim]]!r}")
+        _check_zone_box(s, key, z)
         vec_key, vec = (f"{key}.velocity", z.velocity) if name == "inlets" else (f"{key}.direction", z.direction)
         axis = _axis_of(s, vec_key, vec)
         if name == "outlets" and abs(vec[axis]) != 1.0:
@@ -1222,25 +1212,31 @@ def _domain_box(s: Scene) -> tuple[list, list]:
     return [c - h for c, h in zip(dom.center, half)], [c + h for c, h in zip(dom.center, half)]
 
 
+def _check_zone_box(s: Scene, key: str, z):
+    """A zone's box (an inlet's, an outlet's, a damping zone's: its ``min`` and ``max``): of the
+    scene's dimension, not empty on any axis, inside the domain's box."""
+    lo, hi = _domain_box(s)
+    slack = 1e-9 * max(_domain_extent(s)[: s.dim])
+    if s.dim == 2 and (z.min[2] or z.max[2]):
+        raise SceneError(f"{key}: min and max z must be 0 in a 2D scene")
+    if any(z.max[d] <= z.min[d] for d in range(s.dim)):
+        raise SceneError(f"{key}.max = {list(z.max[: s.dim])!r}: must exceed {key}.min = {list(z.min[: s.dim])!r} "
+                         "on every axis")
+    if any(z.min[d] < lo[d] - slack or z.max[d] > hi[d] + slack for d in range(s.dim)):
+        raise SceneError(f"{key}: the zone {list(z.min[: s.dim])!r} .. {list(z.max[: s.dim])!r} reaches outside the "
+                         f"domain's box {[round(v, 12) for v in lo[: s.dim]]!r} .. "
+                         f"{[round(v, 12) for v in hi[: s.dim]]!r}")
+
+
 def _check_damping_zones(s: Scene):
     """[[damping_zones]] (physics/damping.py): boxes of the scene's dimension inside the domain's
     box, a direction along one axis, and a rate the largest step integrates stably (v (1 - k dt)
     must not turn v around: rate x time.dt < 1)."""
     if not s.damping_zones:
         return
-    lo, hi = _domain_box(s)
-    slack = 1e-9 * max(_domain_extent(s)[: s.dim])
     for i, z in enumerate(s.damping_zones):
         key = f"damping_zones[{i}]"
-        if s.dim == 2 and (z.min[2] or z.max[2]):
-            raise SceneError(f"{key}: min and max z must be 0 in a 2D scene")
-        if any(z.max[d] <= z.min[d] for d in range(s.dim)):
-            raise SceneError(f"{key}.max = {list(z.max[: s.dim])!r}: must exceed {key}.min = {list(z.min[: s.dim])!r} "
-                             "on every axis")
-        if any(z.min[d] < lo[d] - slack or z.max[d] > hi[d] + slack for d in range(s.dim)):
-            raise SceneError(f"{key}: the zone {list(z.min[: s.dim])!r} .. {list(z.max[: s.dim])!r} reaches outside the "
-                             f"domain's box {[round(v, 12) for v in lo[: s.dim]]!r} .. "
-                             f"{[round(v, 12) for v in hi[: s.dim]]!r}")
+        _check_zone_box(s, key, z)
         axis = _axis_of(s, f"{key}.direction", z.direction)
         if abs(z.direction[axis]) != 1.0:
             raise SceneError(f"{key}.direction = {list(z.direction[: s.dim])!r}: must be a unit vector along one axis, "
