@@ -53,8 +53,9 @@ class Model:
     gradient_moment (boundaries.lattice_gradient_moment); walls; mass (kg per particle); host_grid,
     grid_lo (float64 origin), lo (origin in the run's dtype), periodic (0/1); nu (m^2/s, 0 without a
     physical viscosity); prm (params.Params); the flags dfsph, pair_gradients (DFSPH reads stored
-    grad W_ij), continuity, use_xsph, use_shifting, use_drift, use_vorticity, use_diffusion, use_damping; force_terms ((stage, scene value)
-    of stages.FORCE_TERMS that are on); extra_names (the arrays carried in state.extra)."""
+    grad W_ij), continuity, use_xsph, use_shifting, use_drift, use_vorticity, use_diffusion, use_damping;
+    force_terms ((stage, scene value) of stages.FORCE_TERMS that are on); extra_names (the arrays carried
+    in state.extra)."""
 
     def __init__(self, scene: Scene, precision: str | None = None, backend: str = "cpu"):
         self.scene = scene
