@@ -1197,13 +1197,13 @@ WAVE_WINDOW_T = (3.0, 7.0)
 
 
 def incident_and_reflected(fits, gauges, k: float) -> tuple[float, float]:
-    """Amplitudes (m) of the wave running along +x and of the one coming back, from two gauges'
-    first harmonics (``harmonic``'s (amplitude, phase) at x1, x2): eta_j = Re(Z_j e^{i omega t}) with
-    Z_j = a_i e^{-i k x_j} + a_r e^{i k x_j} (Goda & Suzuki 1976; k (x2 - x1) must not be near a
-    multiple of pi)."""
+    """Amplitudes (m) of the wave running along +x and of the one coming back, from two or more
+    gauges' first harmonics (``harmonic``'s (amplitude, phase) at x_j): eta_j = Re(Z_j e^{i omega t})
+    with Z_j = a_i e^{-i k x_j} + a_r e^{i k x_j} (Goda & Suzuki 1976; least squares beyond two gauges;
+    no two gauges k (x2 - x1) near a multiple of pi apart)."""
     z = np.array([a * np.exp(-1j * phase) for a, phase in fits])
     x = np.asarray(gauges, dtype=float)
-    a_i, a_r = np.linalg.solve(np.stack([np.exp(-1j * k * x), np.exp(1j * k * x)], axis=1), z)
+    (a_i, a_r), *_ = np.linalg.lstsq(np.stack([np.exp(-1j * k * x), np.exp(1j * k * x)], axis=1), z, rcond=None)
     return float(abs(a_i)), float(abs(a_r))
 
 

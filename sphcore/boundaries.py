@@ -107,14 +107,21 @@ def container_frame(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     return np.array(dom.center, dtype=float), rotation_matrix(dom.rotation)
 
 
+def _zone_bounds(scene: Scene, z) -> tuple[list, list]:
+    """A zone's box as 3 lower and 3 upper bounds (m): an axis beyond the scene's dimension spans
+    (-ZONE_FAR, ZONE_FAR)."""
+    lo = [z.min[d] if d < scene.dim else -ZONE_FAR for d in range(3)]
+    hi = [z.max[d] if d < scene.dim else ZONE_FAR for d in range(3)]
+    return lo, hi
+
+
 def zone_rows(scene: Scene, dtype) -> np.ndarray:
     """The [[inlets]] and [[outlets]] as wall_zones rows (physics/open_boundary.py); one padding row
     (kind 0) when there are none, so that every backend has an array to pass."""
     rows = []
     for kind, zones in ((ZONE_INLET, scene.inlets), (ZONE_OUTLET, scene.outlets)):
         for z in zones:
-            lo = [z.min[d] if d < scene.dim else -ZONE_FAR for d in range(3)]
-            hi = [z.max[d] if d < scene.dim else ZONE_FAR for d in range(3)]
+            lo, hi = _zone_bounds(scene, z)
             rows.append([kind, *lo, *hi, *(z.velocity if kind == ZONE_INLET else (z.pressure, 0.0, 0.0))])
     return np.array(rows or [[ZONE_NONE] + [0.0] * (ZONE_COLUMNS - 1)], dtype=dtype).reshape(-1, ZONE_COLUMNS)
 
@@ -126,8 +133,7 @@ def damping_rows(scene: Scene, dtype) -> np.ndarray:
     for z in scene.damping_zones:
         axis = next(d for d in range(scene.dim) if z.direction[d] != 0.0)
         start, end = (z.min[axis], z.max[axis]) if z.direction[axis] > 0.0 else (z.max[axis], z.min[axis])
-        lo = [z.min[d] if d < scene.dim else -ZONE_FAR for d in range(3)]
-        hi = [z.max[d] if d < scene.dim else ZONE_FAR for d in range(3)]
+        lo, hi = _zone_bounds(scene, z)
         rows.append([*lo, *hi, start, 1.0 / (end - start), axis, z.rate])
     return np.array(rows or [[0.0] * DAMPING_COLUMNS], dtype=dtype).reshape(-1, DAMPING_COLUMNS)
 

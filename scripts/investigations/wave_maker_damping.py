@@ -12,21 +12,12 @@ the quick spacing (15 over the depth) on one thread, 3 min at 20, 8 min at 30.
 import argparse
 import math
 
-import numpy as np
-
-from launch.validate import CONFIGS, PistonWave, Simulation, harmonic, load_scene, probe_record
+from launch.validate import (CONFIGS, PistonWave, Simulation, harmonic, incident_and_reflected, load_scene,
+                             probe_record)
 from sphcore.scene import scene_from_dict
 
 GAUGES = (0.3, 0.5, 0.8)
 WINDOWS_T = ((3, 7), (4, 8), (6, 10))
-
-
-def split(fits, k):
-    """(incident, reflected) amplitudes from the gauges' first harmonics (least squares)."""
-    z = np.array([a * np.exp(-1j * phase) for a, phase in fits])
-    x = np.array(GAUGES)
-    (a_i, a_r), *_ = np.linalg.lstsq(np.stack([np.exp(-1j * k * x), np.exp(1j * k * x)], axis=1), z, rcond=None)
-    return abs(a_i), abs(a_r)
 
 
 def main():
@@ -59,7 +50,7 @@ def main():
         fits = [harmonic(t[w], rec[w, 1 + j] - wave.depth, wave.omega) for j in range(len(GAUGES))]
         speeds = [wave.omega * (GAUGES[j + 1] - GAUGES[j]) / ((fits[j + 1][1] - fits[j][1]) % (2.0 * math.pi))
                   for j in range(len(GAUGES) - 1)]
-        a_i, a_r = split(fits, wave.k)
+        a_i, a_r = incident_and_reflected(fits, GAUGES, wave.k)
         print(f"| {lo}-{hi} T | " + " | ".join(f"{2 * a / wave.height:.3f}" for a, _ in fits) + " | "
               + " | ".join(f"{c / c_theory:.3f}" for c in speeds)
               + f" | {2 * a_i / wave.height:.3f} | {a_r / a_i:.3f} |", flush=True)

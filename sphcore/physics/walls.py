@@ -422,7 +422,7 @@ def flag_near_cells(kinds, data, origin, cell, ncell, reach, near):
         flag = 0
         for q in range(kinds.shape[0]):
             wd = data[q]
-            if kinds[q] == 5:  # MESH_OUTSIDE:  # its distance grid (sphcore.mesh_sdf layout), grown by H
+            if kinds[q] == 5:  # MESH_OUTSIDE: its distance grid (sphcore.mesh_sdf layout), grown by H
                 span = 1.0 / wd[19]
                 inside = True
                 for d in range(3):
