@@ -3,8 +3,9 @@ case, exit code 1 if any metric fails.
 
     sph validate CASE [--quick] [--out DIR]      CASE: hydrostatic, hydrostatic_3d, dam_break, dam_break_3d,
                                                        taylor_green, oscillating_drop, poiseuille, couette,
-                                                       floating_box, hydrostatic_probes, cavity,
-                                                       dam_break_pressure
+                                                       floating_box, floating_square, hydrostatic_probes,
+                                                       cavity, dam_break_pressure, channel, circular_couette,
+                                                       wave_maker
     sph validate --all [--quick]
 
 Each case is a function of (quick, out folder) returning its metrics; ``--quick`` uses a coarser
@@ -608,6 +609,81 @@ def floating_box(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions
     ax.set_title(f"Floating box, density {box.density:g} kg/m^3, heave only, dx = {dx:g} m")
     fig.tight_layout()
     fig.savefig(out / "floating_box.png", dpi=100)
+    plt.close(fig)
+    return metrics
+
+
+def body_angle(body) -> float:
+    """A 2D floating body's turn about z since the scene placed it (degrees, in (-180, 180])."""
+    return math.degrees(math.atan2(body.R[1, 0], body.R[0, 0]))
+
+
+def floating_square(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions | None = None) -> list[Metric]:
+    """A square log of half the water's density (a floating body free to turn): released flat, 5
+    degrees off, it rolls over and floats corner down, a diagonal vertical. Flat is unstable for a
+    square of relative density s = 1/2 (metacentric height KB + BM - KG = a/4 + a/6 - a/2 = -a/12),
+    and for 1/4 < s < 3/4 the stable attitude is at 45 degrees (the classical result for square
+    prisms: e.g. Reid 1963; Delbourgo 1987, "The floating plank", Am. J. Phys. 55:799). At 45 degrees
+    with s = 1/2 the waterline runs through two corners, so the centre floats on the surface. Metrics:
+    the mean angle and the centre's height above the still water by the walls over t = 3-5 s."""
+    opts = opts or CaseOptions(backend)
+    dx = opts.dx or (0.02 if quick else 0.01)
+    scene = load_scene(CONFIGS / "floating_square_2d.toml", [f"particles.spacing={dx}", *opts.overrides])
+    log_ = scene.obstacles[0]
+    side = log_.size[0]
+    sim = Simulation(scene, opts.precision, opts.backend)
+    body = sim.model.walls.bodies[0]
+    t_end, window = 5.0, 2.0
+    clock = _Clock(sim, opts, "floating_square", t_end)
+    times, angles, heights = [], [], []
+    while sim.t < t_end:
+        sim.step(dt_cap=t_end - sim.t)
+        clock.tick()
+        if sim.step_index % 20 == 0 or sim.t >= t_end:
+            s = sim.state
+            x = s.x[: s.n_owned]
+            centre = np.array(log_.center[:2]) + body.x[:2]
+            far = np.abs(x[:, 0] - centre[0]) > 0.5 * math.sqrt(2.0) * side + 0.1  # the still water by the walls
+            surface = x[far, 1].max() + 0.5 * dx                                      # top layer + dx/2
+            times.append(sim.t)
+            angles.append(log_.rotation[2] + body_angle(body))
+            heights.append(centre[1] - surface)
+    clock.done()
+    times, angles, heights = np.array(times), np.array(angles), np.array(heights)
+    late = times >= t_end - window
+    angle, height = float(angles[late].mean()), float(heights[late].mean())
+    metrics = [Metric("floating_square.angle_error_deg", abs(abs(angle) - 45.0), 2.0,
+                      f"mean angle {angle:.2f} degrees over t = {t_end - window:g}-{t_end:g} s vs 45 (corner down); "
+                      f"range {angles[late].min():.2f}-{angles[late].max():.2f}; {sim.n_particles} particles"),
+               Metric("floating_square.centre_height_of_side", abs(height) / side, 0.05,
+                      f"mean height of the centre above the surface {100 * height:+.2f} cm over the same window vs 0 "
+                      f"(side {100 * side:g} cm)")]
+    if not opts.plot:
+        return metrics
+    plt = _plot()
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(10, 3.8), gridspec_kw={"width_ratios": [1.3, 1]})
+    ax.plot(times, angles, "-", lw=1, label="angle (sphfluid)")
+    ax.axhline(45.0, color="k", lw=0.8, ls="--", label="stable: 45 degrees")
+    ax.axhline(0.0, color="0.5", lw=0.8, ls=":", label="flat: unstable")
+    ax.axvspan(t_end - window, t_end, color="0.9", label="averaged")
+    ax.set_xlabel("t (s)")
+    ax.set_ylabel("angle (degrees)")
+    ax.legend(fontsize=8, loc="lower right")
+    ax.set_title(f"Square log, density {log_.density:g} kg/m^3, dx = {dx:g} m")
+    s = sim.state
+    x = s.x[: s.n_owned]
+    ax2.scatter(x[:, 0], x[:, 1], s=1.5 if quick else 0.5, c="tab:blue", lw=0)
+    corners = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1], [-1, -1]]) * 0.5 * side
+    turn = math.radians(angles[-1])
+    rot = np.array([[math.cos(turn), -math.sin(turn)], [math.sin(turn), math.cos(turn)]])
+    outline = corners @ rot.T + np.array(log_.center[:2]) + body.x[:2]
+    ax2.fill(outline[:, 0], outline[:, 1], color="#b0a088", ec="k", lw=0.8)
+    ax2.set_aspect("equal")
+    ax2.set_xlim(scene.domain.center[0] - 0.5 * scene.domain.size[0], scene.domain.center[0] + 0.5 * scene.domain.size[0])
+    ax2.set_ylim(0.0, scene.domain.center[1] + 0.5 * scene.domain.size[1])
+    ax2.set_title(f"t = {sim.t:.1f} s", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(out / "floating_square.png", dpi=100)
     plt.close(fig)
     return metrics
 
@@ -1268,7 +1344,8 @@ def wave_maker(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions |
 
 CASES = {"hydrostatic": hydrostatic, "hydrostatic_3d": hydrostatic_3d, "dam_break": dam_break, "dam_break_3d": dam_break_3d,
          "taylor_green": taylor_green, "oscillating_drop": oscillating_drop, "poiseuille": poiseuille,
-         "couette": couette, "floating_box": floating_box, "hydrostatic_probes": hydrostatic_probes,
+         "couette": couette, "floating_box": floating_box, "floating_square": floating_square,
+         "hydrostatic_probes": hydrostatic_probes,
          "cavity": cavity, "dam_break_pressure": dam_break_pressure, "channel": channel,
          "circular_couette": circular_couette, "wave_maker": wave_maker}
 

@@ -644,7 +644,10 @@ def make_summary(sim: Simulation, scene: Scene, loop: dict, t_setup: float, wall
         **({"open_boundaries": sim.open.summary()} if sim.open.active else {}),
         "bodies": [{"obstacle": b.wall - sim.model.walls.container_walls - len(scene.domain.planes), "mass": b.mass,
                     "displacement": [float(c) for c in b.x], "velocity": [float(c) for c in b.v],
-                    "force": [float(c) for c in b.force]} for b in sim.model.walls.bodies],
+                    "force": [float(c) for c in b.force],
+                    **({"orientation": [[float(c) for c in row] for row in b.R],
+                        "angular_velocity": [float(c) for c in b.w], "torque": [float(c) for c in b.torque]}
+                       if b.rotates else {})} for b in sim.model.walls.bodies],
         "bytes_sent": 0,
         "machine": {"python": platform.python_version(), "platform": platform.platform(),
                     "numba": numba.__version__, "numpy": np.__version__},

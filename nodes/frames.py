@@ -182,10 +182,11 @@ class FrameMaker:
 
 
 def body_displacements(sim) -> dict:
-    """{obstacle index: [x, y, z]}: how far each floating body has moved (the viewer draws it there)."""
+    """{obstacle index: [x, y, z]}: how far each floating body has moved, then, for one that turns, its
+    orientation R row by row (9 more numbers): the viewer draws it there."""
     walls = sim.model.walls
     first = walls.container_walls + len(sim.scene.domain.planes)  # the obstacles' rows follow the planes'
-    return {str(b.wall - first): [float(c) for c in b.x] for b in walls.bodies}
+    return {str(b.wall - first): [float(c) for c in (*b.x, *(b.R.ravel() if b.rotates else ()))] for b in walls.bodies}
 
 
 def domain_box(scene):

@@ -67,8 +67,8 @@ import numpy as np
 from nodes import wire
 from nodes.frames import SURFACE_SCALE, surface_lattice
 from nodes.rerun_sinks import LIVE_FPS, Streams, sinks_for
-from nodes.walls_view import (body_shifts, floating_obstacles, merge_layer, moving_obstacles, obstacle_distance,
-                               obstacle_layer, obstacle_transform, wall_meshes)
+from nodes.walls_view import (body_shifts, body_transform, floating_obstacles, merge_layer, moving_obstacles,
+                               obstacle_distance, obstacle_layer, obstacle_transform, wall_meshes)
 from nodes.zenoh_transport import zenoh_config
 from sphcore.output import write_summary
 from sphcore.render import LUT, RANK_COLOURS, Framelet, SceneRenderer, composite, draw_box
@@ -498,8 +498,8 @@ class Viewer:
         rgb, depth = self.image(frames, sim_time, shifts)
         for i, motion in moving_obstacles(self.scene).items():  # the 3D view's meshes follow them too
             rec.log(f"obstacles/{i}", rr.Transform3D(**obstacle_transform(self.scene, i, motion, sim_time)))
-        for i, shift in shifts.items():
-            rec.log(f"obstacles/{i}", rr.Transform3D(translation=shift))
+        for i, (shift, R) in shifts.items():
+            rec.log(f"obstacles/{i}", rr.Transform3D(**body_transform(self.scene, i, shift, R)))
         jpeg = encode_jpeg(rgb, RGB_QUALITY)
         png, meter = encode_depth(depth)
         size = len(jpeg) + len(png)

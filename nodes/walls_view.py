@@ -68,8 +68,9 @@ def floating_obstacles(scene) -> list:
 
 
 def body_shifts(scene, bodies) -> dict:
-    """{obstacle index: displacement (3,)} from a frame's "bodies" statistic ({index: [x, y, z]}), off
-    the wire: only floating obstacles' entries of three finite numbers are kept."""
+    """{obstacle index: (displacement (3,), orientation (3, 3) or None)} from a frame's "bodies"
+    statistic ({index: [x, y, z] or [x, y, z, R row by row]}, nodes/frames.py), off the wire: only
+    floating obstacles' entries of finite numbers, and orientations that are rotations, are kept."""
     if not isinstance(bodies, dict):
         return {}
     floating, out = set(floating_obstacles(scene)), {}
@@ -79,9 +80,29 @@ def body_shifts(scene, bodies) -> dict:
             x = np.asarray(value, dtype=np.float64)
         except (TypeError, ValueError):
             continue
-        if i in floating and x.shape == (3,) and np.all(np.isfinite(x)):
-            out[i] = x
+        if i not in floating or x.shape not in ((3,), (12,)) or not np.all(np.isfinite(x)):
+            continue
+        R = x[3:].reshape(3, 3) if x.size == 12 else None
+        if R is not None and not (np.allclose(R @ R.T, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0.0):
+            continue
+        out[i] = (x[:3], R)
     return out
+
+
+def _body_at_rest(p, centre, shift, R):
+    """The points p of the world where a floating body (centre at t = 0, displaced by ``shift`` and
+    turned by ``R`` about its centre) was at t = 0."""
+    p = p - shift
+    return p if R is None else centre + (p - centre) @ R  # R^T (p - c) per row
+
+
+def body_transform(scene, i: int, shift, R) -> dict:
+    """Transform3D arguments that carry floating obstacle i's mesh (logged where it is at t = 0) to
+    where the peers say it is."""
+    if R is None:
+        return {"translation": shift}
+    centre = _placed(scene)[i][1]
+    return {"translation": centre - R @ centre + shift, "mat3x3": R}
 
 
 def obstacle_distance(scene):
@@ -122,10 +143,12 @@ def obstacle_distance(scene):
         return pivot + (p - pivot) @ motion.rotation(t)  # R^T (p - P) per row
 
     def distance(p, t=0.0, shifts=None):
-        """``shifts``: {obstacle index: displacement (3,)} of the floating bodies (from the peers)."""
+        """``shifts``: {obstacle index: (displacement (3,), orientation or None)} of the floating
+        bodies (from the peers, ``body_shifts``)."""
         shifts = shifts or {}
-        return np.min(np.stack([f(p - shifts[i]) if i in shifts else f(at_rest(i, p, t)) if i in moving
-                                else f(p) for i, f in enumerate(parts)]), axis=0)
+        return np.min(np.stack([f(_body_at_rest(p, centres[i], *shifts[i])) if i in shifts
+                                else f(at_rest(i, p, t)) if i in moving else f(p)
+                                for i, f in enumerate(parts)]), axis=0)
     return distance
 
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sphcore.choices import Kernel, WallKind
-from sphcore.motion import FloatingBody, Motion
+from sphcore.motion import FloatingBody, Motion, inertia_tensor, matmul3, matvec3
 from sphcore.physics.kernels import dw_dr, kernel_constants, w
 from sphcore.physics.damping import DAMPING_COLUMNS
 from sphcore.physics.open_boundary import ZONE_COLUMNS, ZONE_FAR, ZONE_INLET, ZONE_NONE, ZONE_OUTLET
@@ -75,11 +75,11 @@ class Walls:
             pivot = row[0:3] + motion.pivot
             if motion.rotates:  # turn the geometry about the pivot (motion.py): its point, then its axes
                 R = motion.rotation(t)
-                row[0:3] = pivot + R @ (row[0:3] - pivot)
+                row[0:3] = pivot + matvec3(R, row[0:3] - pivot)
                 if self.kind[q] == WallKind.PLANE:
-                    row[3:6] = R @ row[3:6]
+                    row[3:6] = matvec3(R, row[3:6])
                 elif self.kind[q] in (WallKind.BOX_OUTSIDE, WallKind.CYLINDER_INSIDE):
-                    row[6:15] = (R @ row[6:15].reshape(3, 3)).ravel()
+                    row[6:15] = matmul3(R, row[6:15].reshape(3, 3)).ravel()
             row[0:3] += shift
             if self.kind[q] == WallKind.MESH_OUTSIDE:
                 row[16:19] += shift  # the distance grid's origin (sphcore.mesh_sdf layout)
@@ -225,14 +225,23 @@ def build_walls(scene: Scene, kernel: Kernel, H: float, dtype) -> Walls:
 
 def floating_body(scene: Scene, ob, wall: int) -> FloatingBody:
     """The floating body of obstacle ``ob`` (sphere or box), at rest where the scene puts it; its mass
-    is density x volume (x area per metre of depth in 2D)."""
+    is density x volume (x area per metre of depth in 2D), its inertia that of a uniform body turned
+    as the scene places it (I_0 = R_ob I R_ob^T; the container's frame too)."""
     if ob.shape == "sphere":
         volume = math.pi * ob.radius ** 2 if scene.dim == 2 else 4.0 / 3.0 * math.pi * ob.radius ** 3
+        reach = ob.radius
     else:
         volume = float(np.prod(ob.size[: scene.dim]))
+        reach = 0.5 * math.hypot(*ob.size[: scene.dim])
+    mass = ob.density * volume
     free = np.zeros(3)
     free[: scene.dim] = [1.0 if f else 0.0 for f in ob.free[: scene.dim]]
-    return FloatingBody(wall=wall, mass=ob.density * volume, free=free)
+    Rob = rotation_matrix(ob.rotation)
+    if ob.frame == "container":
+        Rob = matmul3(container_frame(scene)[1], Rob)
+    inertia = matmul3(matmul3(Rob, inertia_tensor(ob.shape, scene.dim, mass, ob.size, ob.radius)), Rob.T)
+    free_rotation = np.array([1.0 if f else 0.0 for f in ob.free_rotation])
+    return FloatingBody(wall=wall, mass=mass, free=free, free_rotation=free_rotation, inertia=inertia, reach=reach)
 
 
 def _pad_rows(rows, dtype) -> np.ndarray:

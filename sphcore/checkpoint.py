@@ -25,6 +25,7 @@ restarts a run from (launch/supervise.py).
 """
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
 import math
@@ -288,8 +289,9 @@ MANIFEST_SCHEMA = {
     "precision": (lambda v: v in ("f32", "f64"), "'f32' or 'f64'"),
     "particles": _integer(1),
     "bodies": (lambda v: isinstance(v, list) and all(
-        isinstance(b, list) and len(b) == 9 and all(_number(-math.inf)[0](c) for c in b) for b in v),
-               "a list of floating bodies' [x, y, z, u, v, w, ax, ay, az] (finite numbers)"),
+        isinstance(b, list) and len(b) in (9, 24) and all(_number(-math.inf)[0](c) for c in b) for b in v),
+               "a list of floating bodies' [x, y, z, u, v, w, ax, ay, az] (finite numbers), each followed by its "
+               "orientation (9), angular velocity (3) and angular acceleration (3) if it turns"),
     "origin": (lambda v: isinstance(v, list) and len(v) == 3 and all(_number(-math.inf)[0](c) for c in v),
                "[x, y, z]: the origin of the positions (m, finite numbers)"),
     "scene": (lambda v: isinstance(v, dict), "an object (the resolved scene)"),
@@ -429,6 +431,11 @@ def restore(sim, ckpt: Checkpoint):
     if len(saved) != len(bodies):
         raise CheckpointError(f"{ckpt.path}: bodies: the checkpoint holds {len(saved)} floating bodies, its scene has "
                               f"{len(bodies)}")
+    for k, (body, values) in enumerate(zip(bodies, saved)):  # checked on a copy: nothing is half restored
+        try:
+            copy.deepcopy(body).set_state(values)
+        except ValueError as e:
+            raise CheckpointError(f"{ckpt.path}: bodies[{k}]: {e}") from None
     carried = {name: a[name] for name in CARRIED}
     for name, values in sim.state.extra.items():  # what this solver carries (zeros if the file lacks it)
         key = EXTRA_PREFIX + name

@@ -37,7 +37,8 @@ point r of it moves at
 Omega = theta', alpha = theta'', P(t) = P + X(t). The walls' terms evaluate u and a at the wall point
 nearest the particle (physics/walls.py ``wall_point_velocity``); a wall that only translates has
 Omega = alpha = 0 there and computes what it did before rotation existed. A path or a floating body
-does not turn (a floating body keeps its orientation).
+does not turn. A floating body turns as the fluid's torque drives it, about the axes its scene frees
+(``FloatingBody`` below).
 
 Every peer evaluates X(t), u_w(t), a_w(t) (and R, Omega, alpha) from the same t in float64, so all
 peers move their walls to the same bits; a resumed run moves them to its checkpoint's t. A
@@ -232,32 +233,116 @@ def _monotone_slopes(t: np.ndarray, X: np.ndarray) -> np.ndarray:
     return m
 
 
+def matmul3(A, B) -> np.ndarray:
+    """A @ B of 3 x 3 matrices in plain float64 arithmetic, in a fixed order: every peer on every
+    machine gets the same bits (a BLAS may fuse or reorder the products by the CPU it finds)."""
+    a, b = A.tolist(), B.tolist()
+    return np.array([[a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j] for j in range(3)] for i in range(3)])
+
+
+def matvec3(A, x) -> np.ndarray:
+    """A @ x (3 x 3 by 3) as ``matmul3``."""
+    a, v = A.tolist(), x.tolist()
+    return np.array([a[i][0] * v[0] + a[i][1] * v[1] + a[i][2] * v[2] for i in range(3)])
+
+
+def _cross(u, v) -> np.ndarray:
+    return np.array([u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]])
+
+
+def turn(phi) -> np.ndarray:
+    """The rotation by the vector ``phi`` (rad): by |phi| about phi / |phi| (Rodrigues), in plain
+    float64 arithmetic (``matmul3``)."""
+    px, py, pz = (float(c) for c in phi)
+    angle = math.sqrt(px * px + py * py + pz * pz)
+    if angle == 0.0:
+        return np.eye(3)
+    ex, ey, ez = px / angle, py / angle, pz / angle
+    s, c = math.sin(angle), 1.0 - math.cos(angle)
+    # I + sin K + (1 - cos) K^2, K the cross-product matrix of e; K^2 = e e^T - I
+    return np.array([[1.0 + c * (ex * ex - 1.0), -s * ez + c * ex * ey, s * ey + c * ex * ez],
+                     [s * ez + c * ey * ex, 1.0 + c * (ey * ey - 1.0), -s * ex + c * ey * ez],
+                     [-s * ey + c * ez * ex, s * ex + c * ez * ey, 1.0 + c * (ez * ez - 1.0)]])
+
+
+def _solve(A, b) -> list:
+    """x with A x = b, A symmetric positive definite (n <= 3, lists), by Gaussian elimination in a
+    fixed order (no pivoting is needed for such an A)."""
+    n = len(b)
+    A = [row[:] for row in A]
+    b = list(b)
+    for k in range(n):
+        for r in range(k + 1, n):
+            f = A[r][k] / A[k][k]
+            for j in range(k, n):
+                A[r][j] -= f * A[k][j]
+            b[r] -= f * b[k]
+    x = [0.0] * n
+    for k in reversed(range(n)):
+        x[k] = (b[k] - sum(A[k][j] * x[j] for j in range(k + 1, n))) / A[k][k]
+    return x
+
+
+def inertia_tensor(shape: str, dim: int, mass: float, size=(0.0, 0.0, 0.0), radius: float = 0.0) -> np.ndarray:
+    """The inertia tensor (3, 3) about the centre of a uniform box of edges ``size`` or a sphere of
+    ``radius`` in its own axes (kg m^2; kg m per metre of depth in 2D, where a sphere is a disc, a
+    cylinder along z, and a box a prism along z: only I_zz counts there)."""
+    if shape == "sphere":
+        k = (0.5 if dim == 2 else 0.4) * mass * radius * radius
+        return np.diag([k, k, k])
+    a, b, c = (float(s) for s in size[:3]) if dim == 3 else (float(size[0]), float(size[1]), 0.0)
+    return mass / 12.0 * np.diag([b * b + c * c, a * a + c * c, a * a + b * b])
+
+
 @dataclass
 class FloatingBody(_NoRotation):
-    """A rigid obstacle moved by the fluid (two-way coupling), translating only: its wall row
-    ``wall``, mass M (kg; kg/m in 2D) and the axes it may move along (``free``, 1 or 0). Each step
-    the fluid's force on it is the reaction to the wall terms its wall exerts on the particles,
+    """A rigid obstacle moved by the fluid (two-way coupling): its wall row ``wall``, mass M (kg; kg/m
+    in 2D), the axes it may move along (``free``, 1 or 0) and, if it turns, the axes it may turn
+    about (``free_rotation``: world axes through its centre). Each step the fluid's force and torque
+    on it are the reaction to the wall terms its wall exerts on the particles,
 
-        F = - sum_i m_i (a_i^pressure + a_i^viscous)   (that wall's share of physics/walls.py),
+        F = - sum_i f_i,    T = sum_i (x_i - c) x (-f_i),    f_i = m_i (a_i^pressure + a_i^viscous)
 
-    summed exactly (integers of ``quantum`` newtons) over all peers; then, by symplectic Euler like
-    the fluid,
+    (that wall's share of physics/walls.py; c the body's centre, x_i the particle: a pressure force
+    along the wall's normal has the same moment about c from x_i as from the wall point behind it),
+    summed exactly (integers of ``quantum`` newtons, ``quantum`` x ``reach`` newton metres) over all
+    peers. Then, by symplectic Euler like the fluid,
 
         a = free (F / M + b),   u += dt a,   X += dt u,
 
-    b the body force of the fluid (gravity and forces.external, ramped alike). X, u and a are state:
-    checkpoints carry them (sphcore/checkpoint.py "bodies"). The coupling is explicit (the force of
-    step n moves the body for step n + 1), which is stable for bodies not much lighter than the fluid
-    they displace (added mass); rotation is not modelled (the body keeps its orientation)."""
+    b the body force of the fluid (gravity and forces.external, ramped alike), and, for a body that
+    turns, Euler's equations in the world's axes with the body's inertia I = R I_0 R^T,
+
+        I alpha = T - Omega x (I Omega)   on the free axes (alpha = 0 on the others),
+        Omega += dt alpha,   R = turn(dt Omega) R,
+
+    R its orientation since the scene placed it (the wall's geometry is turned by R about c, and its
+    points move at u + Omega x (r - c): sphcore/boundaries.py Walls.at, physics/walls.py). On locked
+    axes the joint takes the torque, so ``_solve`` runs on the free rows and columns of I only. All of
+    it is float64 arithmetic in a fixed order (``matmul3``), so every peer moves the body to the same
+    bits. X, u, a (and R, Omega, alpha) are state: checkpoints carry them (sphcore/checkpoint.py
+    "bodies"). The coupling is explicit (the force of step n moves the body for step n + 1), which is
+    stable for bodies not much lighter than the fluid they displace (added mass and inertia)."""
     wall: int
     mass: float
     free: np.ndarray                                          # (3,) 1.0 where the body may move
+    free_rotation: np.ndarray = field(default_factory=lambda: np.zeros(3))  # (3,) 1.0 about the axes it may turn
+    inertia: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))   # I_0: as the scene places it (kg m^2)
+    reach: float = 1.0                                        # the farthest point from its centre (m): T's unit
     x: np.ndarray = field(default_factory=lambda: np.zeros(3))  # X (m) from the scene's position
     v: np.ndarray = field(default_factory=lambda: np.zeros(3))  # u (m/s)
     a: np.ndarray = field(default_factory=lambda: np.zeros(3))  # a (m/s^2)
+    R: np.ndarray = field(default_factory=lambda: np.eye(3))    # orientation since the scene placed it
+    w: np.ndarray = field(default_factory=lambda: np.zeros(3))  # Omega (rad/s)
+    alpha: np.ndarray = field(default_factory=lambda: np.zeros(3))  # alpha (rad/s^2)
     force: np.ndarray = field(default_factory=lambda: np.zeros(3))  # the fluid's last force on it (N; N/m in 2D)
+    torque: np.ndarray = field(default_factory=lambda: np.zeros(3))  # ... and torque about its centre (N m; N)
 
-    STATE = ("x", "v", "a", "force")  # where it is and how it moves: not what the body is (solver._same)
+    STATE = ("x", "v", "a", "R", "w", "alpha", "force", "torque")  # where it is and how it moves (solver._same)
+
+    @property
+    def rotates(self) -> bool:
+        return bool(self.free_rotation.any())
 
     def displacement(self, t: float) -> np.ndarray:
         return self.x
@@ -268,21 +353,53 @@ class FloatingBody(_NoRotation):
     def wall_acceleration(self, t: float) -> np.ndarray:
         return self.a
 
+    def rotation(self, t: float) -> np.ndarray:
+        return self.R
+
+    def angular_velocity(self, t: float) -> np.ndarray:
+        return self.w
+
+    def angular_acceleration(self, t: float) -> np.ndarray:
+        return self.alpha
+
     def quantum(self, gravity) -> float:
         """The unit of the exact force sum (N): 2^-40 of the body's weight (or of M x 1 m/s^2)."""
         return self.mass * max(float(np.linalg.norm(gravity)), 1.0) * 2.0 ** -40
 
-    def advance(self, force, body_acceleration, dt: float):
-        """One step under the fluid's ``force`` and the body force (module docstring)."""
+    def advance(self, force, body_acceleration, dt: float, torque=(0.0, 0.0, 0.0)):
+        """One step under the fluid's ``force`` and ``torque`` and the body force (class docstring)."""
         self.force = np.asarray(force, dtype=np.float64)
         self.a = self.free * (self.force / self.mass + np.asarray(body_acceleration, dtype=np.float64))
         self.v = self.v + dt * self.a
         self.x = self.x + dt * self.v
+        if not self.rotates:
+            return
+        self.torque = np.asarray(torque, dtype=np.float64)
+        inertia = matmul3(matmul3(self.R, self.inertia), self.R.T)
+        rhs = self.torque - _cross(self.w, matvec3(inertia, self.w))  # T - Omega x (I Omega)
+        axes = [k for k in range(3) if self.free_rotation[k]]
+        alpha = np.zeros(3)
+        alpha[axes] = _solve([[inertia[r, c] for c in axes] for r in axes], [rhs[r] for r in axes])
+        self.alpha = alpha
+        self.w = self.w + dt * self.alpha
+        self.R = matmul3(turn(dt * self.w), self.R)
 
     def state(self) -> list:
-        """X, u, a as 9 floats (a checkpoint's "bodies" entry)."""
-        return [float(c) for c in (*self.x, *self.v, *self.a)]
+        """X, u, a as 9 floats (a checkpoint's "bodies" entry), then R, Omega, alpha (15 more) for a
+        body that turns."""
+        parts = (self.x, self.v, self.a) + ((self.R.ravel(), self.w, self.alpha) if self.rotates else ())
+        return [float(c) for part in parts for c in part]
 
     def set_state(self, values):
+        """From ``state()``'s list; ValueError if it is not this body's (its length, or an R that is
+        not a rotation)."""
         values = np.asarray(values, dtype=np.float64)
+        if values.shape != (24 if self.rotates else 9,):
+            raise ValueError(f"expected {24 if self.rotates else 9} numbers for a body that "
+                             f"{'turns' if self.rotates else 'does not turn'}, got {values.size}")
+        if self.rotates:
+            R = values[9:18].reshape(3, 3)
+            if not (np.allclose(R @ R.T, np.eye(3), atol=1e-9) and np.linalg.det(R) > 0.0):
+                raise ValueError("its orientation (numbers 10-18) is not a rotation matrix")
+            self.R, self.w, self.alpha = R.copy(), values[18:21].copy(), values[21:24].copy()
         self.x, self.v, self.a = values[0:3].copy(), values[3:6].copy(), values[6:9].copy()

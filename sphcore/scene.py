@@ -284,8 +284,10 @@ class Obstacle:
     density: float = spec(0.0, "a floating body: its density (kg/m^3), moved by the fluid's force and the body "
                                "forces (sphere and box; 0 = fixed, or moved as velocity/amplitude say)",
                           range=(0.0, math.inf))
-    free: tuple = spec((True, True, True), "a floating body: the axes it may move along (translation only)",
-                       length=VEC)
+    free: tuple = spec((True, True, True), "a floating body: the axes it may move along", length=VEC)
+    free_rotation: tuple = spec((False, False, False), "a floating body: the axes x, y, z it may turn about, through "
+                                "its centre (2D: z only, [false, false, true]); none: it keeps its orientation",
+                                length=(3,))
 
 
 @dataclass(frozen=True)
@@ -1009,6 +1011,9 @@ def _check_combinations(s: Scene, files: bool = True, backend: str = "cpu") -> S
     for i, ob in enumerate(s.obstacles):
         if ob.density > 0.0:
             _check_floating(s, f"obstacles[{i}]", ob)
+        elif any(ob.free_rotation):
+            raise SceneError(f"obstacles[{i}].free_rotation = {list(ob.free_rotation)!r}: only a floating body turns "
+                             f"freely (give obstacles[{i}].density > 0, or angular_velocity for a prescribed turn)")
     if s.sph.solver == "dfsph" and s.time.integrator != "symplectic_euler":
         raise SceneError(f"time.integrator = {s.time.integrator!r}: sph.solver = 'dfsph' integrates with "
                          "'symplectic_euler' (its pressure solve predicts v* = v + dt a and then moves x by dt v*)")
@@ -1090,8 +1095,8 @@ def _check_rotation(s, key: str, item):
         raise SceneError(f"{key}.path: a path translates only; give the rotation without a path, or the path "
                          "without angular_velocity / angular_amplitude")
     if getattr(item, "density", 0.0) > 0.0:
-        raise SceneError(f"{key}.angular_velocity / angular_amplitude: a floating body keeps its orientation (the "
-                         "fluid moves it; rotation of floating bodies is not modelled)")
+        raise SceneError(f"{key}.angular_velocity / angular_amplitude: a floating body is turned by the fluid, not "
+                         f"by prescription (free it with {key}.free_rotation)")
     if getattr(item, "shape", "") == "mesh":
         raise SceneError(f"{key}.angular_velocity / angular_amplitude: a mesh obstacle cannot turn (its signed "
                          "distance grid is laid out along the world's axes); it can translate")
@@ -1138,9 +1143,12 @@ def _check_floating(s, key: str, ob):
         raise SceneError(f"{key}.density = {ob.density!r}: below 0.1 x fluid.rest_density = "
                          f"{0.1 * s.fluid.rest_density:g} kg/m^3; the fluid moves a body this light through an explicit "
                          "coupling that is unstable when the body is much lighter than the fluid it displaces")
-    if not any(ob.free[: s.dim]):
+    if s.dim == 2 and (ob.free_rotation[0] or ob.free_rotation[1]):
+        raise SceneError(f"{key}.free_rotation = {list(ob.free_rotation)!r}: a 2D body turns about z only, "
+                         "[false, false, true]")
+    if not any(ob.free[: s.dim]) and not any(ob.free_rotation):
         raise SceneError(f"{key}.free = {list(ob.free[:s.dim])!r}: a floating body needs at least one free axis "
-                         "(or density = 0 for a fixed obstacle)")
+                         f"(or {key}.free_rotation; or density = 0 for a fixed obstacle)")
 
 
 def _build_tables(cls, name: str, raw, required: tuple, hint: str) -> tuple:

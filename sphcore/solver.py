@@ -304,7 +304,7 @@ class Simulation:
         yield from self._fields(halo, prm, commit=True)            # exchanges 1, 2; neighbours; rho, p
         yield from self.solver.prepare(halo, prm)                  # DFSPH: v -> v (divergence-free)
         yield from self._accelerations(halo, prm)                  # x, v, rho, p     -> a (+ drho)
-        body_forces = yield from self._body_forces(halo, prm)      # floating bodies: the fluid's force
+        body_forces = yield from self._body_forces(halo, prm)      # floating bodies: the fluid's force, torque
         if self.use_xsph:
             self._run(st.XSPH, prm=prm)                            # x, v, rho        -> dv
         if self.use_shifting:
@@ -320,9 +320,9 @@ class Simulation:
             if self.use_diffusion:
                 e.run(st.DENSITY_UPDATE, dt=f(dt))                 # drho             -> carried rho
             e.run(st.INTEGRATE, dt=f(dt), dt_prev=f(self.dt_prev))
-            for body, force in zip(self.model.walls.bodies, body_forces):  # floating bodies: F, b -> a, u, X
-                body.advance(force, (prm.gravity_x + prm.external_x, prm.gravity_y + prm.external_y,
-                                     prm.gravity_z + prm.external_z), dt)
+            for body, (force, torque) in zip(self.model.walls.bodies, body_forces):  # floating bodies: F, T, b ->
+                body.advance(force, (prm.gravity_x + prm.external_x, prm.gravity_y + prm.external_y,  # a, u, X (alpha,
+                                     prm.gravity_z + prm.external_z), dt, torque)                     # Omega, R)
                 self._check_body(body)
             self._move_walls(self.t + dt)                          # the collision guard: walls at t + dt
             self.leaks += int(e.run(st.BOUNDARIES, prm=prm))
@@ -337,18 +337,20 @@ class Simulation:
         yield from self.health.after_step(halo)                   # every K steps: the energy watchdog
 
     def _body_forces(self, halo, prm):
-        """Generator: the fluid's force on each floating body (N; N/m in 2D), summed exactly over all
-        peers (physics/bodies.py)."""
-        forces = []
+        """Generator: the fluid's force (N; N/m in 2D) and torque about its centre (N m; N) on each
+        floating body, summed exactly over all peers (physics/bodies.py)."""
+        out = []
         for k, body in enumerate(self.model.walls.bodies):
-            quantum = self.dtype.type(body.quantum((prm.gravity_x + prm.external_x, prm.gravity_y + prm.external_y,
-                                                    prm.gravity_z + prm.external_z)))  # the kernel's, exactly
+            f = self.dtype.type
+            quantum = f(body.quantum((prm.gravity_x + prm.external_x, prm.gravity_y + prm.external_y,
+                                      prm.gravity_z + prm.external_z)))  # the kernel's, exactly
+            torque_quantum = f(float(quantum) * body.reach)
             units = self._run(st.BODY_REACTION, prm=prm, wall=body.wall, quantum=quantum,
-                              dt_prev=self.dtype.type(self.dt_prev))
-            quantum = float(quantum)
+                              torque_quantum=torque_quantum, dt_prev=f(self.dt_prev))
             units = yield from halo.reduce_sums(self, f"body{k}", units)
-            forces.append(np.array(units, dtype=np.float64) * quantum)
-        return forces
+            units = np.array(units, dtype=np.float64)
+            out.append((units[:3] * float(quantum), units[3:] * float(torque_quantum)))
+        return out
 
     def _check_body(self, body):
         """A floating body whose reference point leaves the domain's box (body-wall contact is not
@@ -356,8 +358,11 @@ class Simulation:
         w = self.model.walls
         where = w.rest[body.wall, 0:3] + body.x
         d = self.scene.dim
+        index = body.wall - w.container_walls - len(self.scene.domain.planes)
+        if not (np.all(np.isfinite(body.R)) and np.all(np.isfinite(body.w))):
+            self._fail(f"floating body obstacles[{index}] turns at a rate that is not finite (Omega = "
+                       f"{np.array2string(body.w, precision=3)} rad/s)", rows="fastest")
         if not (np.all(np.isfinite(where)) and np.all(where[:d] >= w.lo[:d]) and np.all(where[:d] <= w.hi[:d])):
-            index = body.wall - w.container_walls - len(self.scene.domain.planes)
             self._fail(f"floating body obstacles[{index}] left the domain (its centre at "
                        f"{np.array2string(where[:d], precision=4)} m, moving at "
                        f"{np.array2string(body.v[:d], precision=3)} m/s): contact between a body and the walls is "

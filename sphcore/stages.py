@@ -109,6 +109,7 @@ ARGUMENTS = MappingProxyType({
     "coefficient": ("float", "a force term's scene value (Stage.key), in the run's precision"),
     "wall": ("int", "a floating body's wall row (physics/bodies.py)"),
     "quantum": ("float", "a floating body's force unit (N; N/m in 2D): the exact sum's integer step"),
+    "torque_quantum": ("float", "a floating body's torque unit (N m; N in 2D): quantum x its reach"),
     "energy_terms": ("terms64", "the energy watchdog's float64 constants: body force, u_min, central force, the "
                                 "integer unit, the clamp (physics/energy.py)"),
     "kinetic": ("bool", "energy: the kinetic part only"),
@@ -147,7 +148,7 @@ REDUCTIONS = MappingProxyType({
     "imax": ("int64", "max"),  # integer maximum (a count >= 0)
     "max": ("float64", "max"),  # maximum of a real value >= 0 (the step statistics)
 })
-MAX_REDUCED = 4  # values of one type a stage may reduce (the backends' result buffers)
+MAX_REDUCED = 6  # values of one type a stage may reduce (the backends' result buffers)
 
 
 def reduction_slots(reduce: tuple) -> list[tuple[str, int]]:
@@ -246,7 +247,8 @@ DFSPH_FINISH = Stage("dfsph_finish", dfsph_finish_row, writes=("a", "p", "kappa"
 DENSITY_UPDATE = Stage("density_update", density_update_row, writes=("rho_c",)).check()
 INTEGRATE = Stage("integrate", integrate_row, writes=("x", "v")).check()
 BOUNDARIES = Stage("boundaries", boundaries_row, writes=("x", "v"), reduce=("sum",)).check()  # leaks
-BODY_REACTION = Stage("body_reaction", body_reaction_row, writes=(), reduce=("sum", "sum", "sum")).check()  # F
+BODY_REACTION = Stage("body_reaction", body_reaction_row, writes=(),
+                      reduce=("sum",) * 6).check()  # F, T about the body's centre
 ENERGY = Stage("energy", energy_row, writes=(), reduce=("sum",)).check()  # the energy watchdog's integer units
 
 # Force terms: each adds to a after FORCES, in this order, when its scene key is > 0

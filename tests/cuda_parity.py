@@ -125,6 +125,8 @@ def steps_case(sc, precision, steps) -> dict:
     out["leaks"] = [cpu.leaks, gpu.leaks]
     for b_cpu, b_gpu in zip(cpu.model.walls.bodies, gpu.model.walls.bodies):  # floating bodies: moved alike
         out["body_x"] = max(out.get("body_x", 0.0), float(np.max(np.abs(b_cpu.x - b_gpu.x))) / _scales(cpu)["x"])
+        out["body_R"] = max(out.get("body_R", 0.0), float(np.max(np.abs(b_cpu.R - b_gpu.R))))  # turned alike
+        out["body_turned"] = float(np.max(np.abs(b_cpu.R - np.eye(3))))
     return out
 
 
@@ -201,9 +203,10 @@ CASES = {
                                                  "domain.planes[1].amplitude=[0, 2e-5]",
                                                  "domain.planes[1].frequency=10", "terms.wall_friction=1e-6"),
                                            "f64", 3),
-    # a floating body: its force, the reaction to its wall's terms, reduced on the device
+    # a floating body: its force and torque, the reaction to its wall's terms, reduced on the device
     "floating_f64": lambda: steps_case(scene("floating_box_2d.toml", "particles.spacing=0.06",
-                                             "forces.ramp_time=0.001"), "f64", 5),
+                                             "forces.ramp_time=0.001", "obstacles[0].rotation=[0, 0, 10]",
+                                             "obstacles[0].free_rotation=[false, false, true]"), "f64", 5),
     # a turning wall (motion.py): the inner cylinder's velocity Omega x (r - P) at each wall point
     "rotating_f64": lambda: steps_case(scene("circular_couette_2d.toml", "particles.spacing=2e-4"), "f64", 3),
     # inlets and outlets (open_boundary.py): a layer enters, rows leave, on the device as on the CPU

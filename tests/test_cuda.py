@@ -108,9 +108,12 @@ def test_float32_steps_match_cpu(parity):
 def test_options_match_cpu(parity, case):
     """Optional terms (XSPH, surface tension, vorticity confinement, shifting), leapfrog, Morris
     viscosity, the cubic spline kernel, periodic axes, the cell walk with the carried density, moving
-    and turning walls, a floating body (where it moved to: body_x), a damping zone."""
+    and turning walls, a floating body (where it moved to: body_x; how it turned: body_R), a damping zone."""
     _check(parity[case], "f64")
     assert parity[case].get("body_x", 0.0) <= TOL["f64"]["x"]
+    assert parity[case].get("body_R", 0.0) <= 1e-12
+    if case == "floating_f64":  # the body turned (its torque was reduced on the device too)
+        assert parity[case]["body_turned"] > 1e-9, parity[case]
 
 
 @pytest.mark.slow

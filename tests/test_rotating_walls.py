@@ -137,7 +137,7 @@ def test_the_viewer_turns_the_paddle_as_the_simulation_does(tmp_path):
      "needs obstacles[0].frequency > 0"),
     ("angular_velocity = [0.0, 0.0, 10.0]\npath = [[0.0, 0.0, 0.0], [1.0, 0.1, 0.0]]\n",
      "obstacles[0].path: a path translates only"),
-    ("angular_velocity = [0.0, 0.0, 10.0]\ndensity = 500.0\n", "a floating body keeps its orientation"),
+    ("angular_velocity = [0.0, 0.0, 10.0]\ndensity = 500.0\n", "a floating body is turned by the fluid, not by prescription"),
     ("angular_velocity = [0.0, 0.0, 1.0e5]\n", "obstacles[0].velocity / amplitude / frequency: the wall moves at up to"),
     ("pivot = [0.0, 0.0, 1.0]\nangular_velocity = [0.0, 0.0, 10.0]\n", "obstacles[0].pivot = [0.0, 0.0, 1.0]: z must"),
 ])

@@ -1,4 +1,4 @@
-"""The fluid's force on a floating body: the reaction to the wall terms of its wall.
+"""The fluid's force and torque on a floating body: the reaction to the wall terms of its wall.
 
 A floating obstacle (sphcore/motion.py FloatingBody) is an analytic wall like any other: it pushes
 the particles near it with the wall pressure term and, with the Morris viscosity, drags them with
@@ -6,9 +6,13 @@ the no-slip term (physics/walls.py). By Newton's third law the fluid pushes the 
 
     F = - sum_i m_i (theta_i (a_i^wall pressure + a_i^wall viscous) + a_i^wall friction)     (that one wall's terms)
 
+and turns it with the torque about its centre c (the wall's pivot, ``wall_motion[wall, 12:15]``)
+
+    T = sum_i (x_i - c) x F_i,      F_i = - m_i (theta_i (...) + a_i^wall friction)
+
 (theta_i the fill fraction, as in the forces pass; the turbulent friction of terms.wall_friction,
 physics/wall_friction.py, is not scaled by it there, nor here). Each row returns its share in integer units of
-``quantum`` newtons (N/m in 2D), so the sum over rows — and over peers, ``PeerHalo.reduce_sums`` —
+``quantum`` newtons (N/m in 2D) and ``torque_quantum`` newton metres (N in 2D), so the sum over rows — and over peers, ``PeerHalo.reduce_sums`` —
 is exact and independent of the order: every peer moves the body by the same bits. Where the body
 meets another wall the corner correction of the walls' terms is not in F (the single-wall terms
 are), a small error only while the body touches the container. (Comparable to the way DualSPHysics
@@ -33,9 +37,9 @@ def _units(value, quantum):
 
 @njit(cache=True, inline="always")
 def body_reaction_row(kernel, viscosity, prm, i, x, v, m, rho, p, wall_kind, wall_data, wall_tables, wall_motion,
-                      fill, dt_prev, wall, quantum):
-    """Row i's share of the fluid's force on the body of wall row ``wall``: (Fx, Fy, Fz) in units of
-    ``quantum`` N.   (module docstring)"""
+                      fill, dt_prev, wall, quantum, torque_quantum):
+    """Row i's share of the fluid's force and torque on the body of wall row ``wall``: (Fx, Fy, Fz)
+    in units of ``quantum`` N, (Tx, Ty, Tz) in units of ``torque_quantum`` N m.   (module docstring)"""
     bx, by, bz = body_acceleration_at(prm, x[i, 0], x[i, 1], x[i, 2])
     q0 = wall
     q1 = wall + 1
@@ -55,4 +59,6 @@ def body_reaction_row(kernel, viscosity, prm, i, x, v, m, rho, p, wall_kind, wal
         fx -= m[i] * tx
         fy -= m[i] * ty
         fz -= m[i] * tz
-    return _units(fx, quantum), _units(fy, quantum), _units(fz, quantum)
+    rx, ry, rz = x[i, 0] - wall_motion[wall, 12], x[i, 1] - wall_motion[wall, 13], x[i, 2] - wall_motion[wall, 14]
+    return (_units(fx, quantum), _units(fy, quantum), _units(fz, quantum), _units(ry * fz - rz * fy, torque_quantum),
+            _units(rz * fx - rx * fz, torque_quantum), _units(rx * fy - ry * fx, torque_quantum))
