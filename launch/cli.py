@@ -355,7 +355,8 @@ def build_parser() -> argparse.ArgumentParser:
         description="Run validation cases (hydrostatic and hydrostatic_3d, dam_break and dam_break_3d: the front vs "
                     "Martin & Moyce, taylor_green, oscillating_drop vs Monaghan & Rafiee, poiseuille and couette vs "
                     "Morris et al., floating_box vs Archimedes, floating_square: a square log rolling over to float "
-                    "corner down, hydrostatic_probes: the tank's [[probes]] vs "
+                    "corner down, settling_cylinder: a cylinder's terminal velocity between two walls vs Faxen's "
+                    "Stokes drag, hydrostatic_probes: the tank's [[probes]] vs "
                     "rho0 g (H0 - y) and the fill height, cavity: the lid-driven cavity vs Ghia et al. 1982, "
                     "dam_break_pressure: wall pressure vs Buchner 2002, channel: an inlet's flow developing into "
                     "plane Poiseuille flow before an outlet, circular_couette: a turning cylinder vs A r + B / r, "
@@ -363,9 +364,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "value tolerance PASS|FAIL) and write a plot per case.")
     validate.add_argument("cases", nargs="*", metavar="CASE",
                           help="hydrostatic, hydrostatic_3d, dam_break, dam_break_3d, taylor_green, oscillating_drop, "
-                               "poiseuille, couette, floating_box, floating_square, hydrostatic_probes, cavity, "
-                               "dam_break_pressure, "
-                               "channel, circular_couette, wave_maker")
+                               "poiseuille, couette, floating_box, floating_square, settling_cylinder, "
+                               "hydrostatic_probes, cavity, dam_break_pressure, channel, circular_couette, wave_maker")
     validate.add_argument("--all", action="store_true", help="every case")
     validate.add_argument("--quick", action="store_true", help="coarser resolution: under ~2 minutes per case")
     validate.add_argument("--out", type=Path, default=Path("runs/validate"), help="folder for the plots")

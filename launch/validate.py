@@ -3,7 +3,8 @@ case, exit code 1 if any metric fails.
 
     sph validate CASE [--quick] [--out DIR]      CASE: hydrostatic, hydrostatic_3d, dam_break, dam_break_3d,
                                                        taylor_green, oscillating_drop, poiseuille, couette,
-                                                       floating_box, floating_square, hydrostatic_probes,
+                                                       floating_box, floating_square, settling_cylinder,
+                                                       hydrostatic_probes,
                                                        cavity, dam_break_pressure, channel, circular_couette,
                                                        wave_maker
     sph validate --all [--quick]
@@ -688,6 +689,64 @@ def floating_square(quick: bool, out: Path, backend: str = "cpu", opts: CaseOpti
     return metrics
 
 
+def faxen_drag(k: float) -> float:
+    """F / (mu U) per unit length of a cylinder of radius a moving along and midway between two plane
+    walls 2 l apart in Stokes flow, k = a / l < 1/2 (Faxen 1946, as quoted by Happel & Brenner 1965
+    and Ben Richou, Ambari & Naciri 2004). Checked independently here: Taylor-Hood finite elements
+    give 21.957 at k = 1/4 against the series' 21.964 (scripts/investigations/faxen_fem_check.py)."""
+    series = -math.log(k) - 0.9157 + 1.7244 * k ** 2 - 1.7302 * k ** 4 + 2.4056 * k ** 6 - 4.5913 * k ** 8
+    return 4.0 * math.pi / series
+
+
+def settling_cylinder(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions | None = None) -> list[Metric]:
+    """A cylinder of twice the water's density settling midway between two walls at Re ~ 0.04 (a
+    floating body moved by the fluid's viscous and pressure forces): its mean velocity over the last
+    0.15 s of 0.4 s against the terminal velocity at which Faxen's Stokes drag balances its weight
+    less its buoyancy, U = (rho_s - rho) g pi a^2 / (mu lambda(a / l))."""
+    opts = opts or CaseOptions(backend)
+    dx = opts.dx or (5.0e-4 if quick else 2.5e-4)
+    scene = load_scene(CONFIGS / "settling_cylinder_2d.toml", [f"particles.spacing={dx}", *opts.overrides])
+    body_spec = scene.obstacles[0]
+    a, half = body_spec.radius, 0.5 * scene.domain.size[0]
+    rho, mu = scene.fluid.rest_density, scene.fluid.rest_density * scene.sph.nu
+    g = abs(scene.forces.gravity[1])
+    terminal = (body_spec.density - rho) * g * math.pi * a * a / (mu * faxen_drag(a / half))
+    sim = Simulation(scene, opts.precision, opts.backend)
+    body = sim.model.walls.bodies[0]
+    t_end, window = 0.4, 0.15
+    clock = _Clock(sim, opts, "settling_cylinder", t_end)
+    times, speeds = [], []
+    while sim.t < t_end:
+        sim.step(dt_cap=t_end - sim.t)
+        clock.tick()
+        if sim.step_index % 10 == 0 or sim.t >= t_end:
+            times.append(sim.t)
+            speeds.append(-body.v[1])
+    clock.done()
+    times, speeds = np.array(times), np.array(speeds)
+    late = times >= t_end - window
+    speed = float(speeds[late].mean())
+    metrics = [Metric("settling_cylinder.terminal_velocity_relative", abs(speed / terminal - 1.0), 0.05,
+                      f"mean settling speed {1e3 * speed:.3f} mm/s over t = {t_end - window:g}-{t_end:g} s vs "
+                      f"{1e3 * terminal:.3f} mm/s (Faxen, a / l = {a / half:g}, Re = {terminal * 2 * a / scene.sph.nu:.3f}); "
+                      f"{sim.n_particles} particles, {a / dx:g} spacings per radius")]
+    if not opts.plot:
+        return metrics
+    plt = _plot()
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    ax.plot(times, speeds / terminal, "-", lw=1, label="settling speed (sphfluid)")
+    ax.axhline(1.0, color="k", lw=0.8, ls="--", label="Faxen's terminal velocity")
+    ax.axvspan(t_end - window, t_end, color="0.9", label="averaged")
+    ax.set_xlabel("t (s)")
+    ax.set_ylabel("speed / terminal speed")
+    ax.legend(fontsize=8)
+    ax.set_title(f"Settling cylinder, a / l = {a / half:g}, dx = {dx:g} m", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(out / "settling_cylinder.png", dpi=100)
+    plt.close(fig)
+    return metrics
+
+
 def mls_velocity(x, v, points, H: float):
     """Velocity at each of ``points`` (k, 2) from the particles at ``x`` (n, 2) with velocities ``v``
     (n, 2): the value at the point of the linear field u(y) = a + B (y - point) fitted by least
@@ -1345,6 +1404,7 @@ def wave_maker(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions |
 CASES = {"hydrostatic": hydrostatic, "hydrostatic_3d": hydrostatic_3d, "dam_break": dam_break, "dam_break_3d": dam_break_3d,
          "taylor_green": taylor_green, "oscillating_drop": oscillating_drop, "poiseuille": poiseuille,
          "couette": couette, "floating_box": floating_box, "floating_square": floating_square,
+         "settling_cylinder": settling_cylinder,
          "hydrostatic_probes": hydrostatic_probes,
          "cavity": cavity, "dam_break_pressure": dam_break_pressure, "channel": channel,
          "circular_couette": circular_couette, "wave_maker": wave_maker}

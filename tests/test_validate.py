@@ -1,5 +1,6 @@
 """sph validate: one line per metric with its tolerance and verdict, a plot per case, the exit code
 follows the verdicts, and bad case names are refused."""
+import math
 import re
 
 import numpy as np
@@ -82,7 +83,7 @@ def test_the_help_names_every_case(capsys):
 
 def test_unknown_cases_are_refused(capsys):
     assert main(["validate", "sloshing"]) == 2
-    assert "choose from hydrostatic, hydrostatic_3d, dam_break, dam_break_3d, taylor_green, oscillating_drop, poiseuille, couette, floating_box, floating_square, hydrostatic_probes" in capsys.readouterr().err
+    assert "choose from hydrostatic, hydrostatic_3d, dam_break, dam_break_3d, taylor_green, oscillating_drop, poiseuille, couette, floating_box, floating_square, settling_cylinder, hydrostatic_probes" in capsys.readouterr().err
 
 
 def test_drop_reference_reproduces_the_published_period():
@@ -186,3 +187,16 @@ def test_hydrostatic_quick_passes_and_set_overrides_reach_the_scene(tmp_path, ca
     # The spacing belongs to the case
     assert main(["validate", "hydrostatic", "--set", "particles.spacing=0.05"]) == 2
     assert "each case sets its own spacing" in capsys.readouterr().err
+
+
+@pytest.mark.fast
+def test_faxens_series_matches_an_independent_finite_element_drag():
+    """The settling cylinder's reference: Faxen's drag on a cylinder midway between two walls, against
+    Taylor-Hood finite elements (scripts/investigations/faxen_fem_check.py, 2026-12-05: 21.9571 at
+    k = 0.25 with elements of a / 20, 52.2905 at k = 0.4 with a / 10), and the unbounded limit's
+    logarithm: the drag falls as the walls recede."""
+    from launch.validate import faxen_drag
+    assert faxen_drag(0.25) == pytest.approx(21.9571, rel=1e-3)
+    assert faxen_drag(0.4) == pytest.approx(52.2905, rel=1e-2)
+    assert faxen_drag(0.01) == pytest.approx(4.0 * math.pi / (math.log(100.0) - 0.9157), rel=1e-3)
+    assert faxen_drag(0.1) < faxen_drag(0.2) < faxen_drag(0.3)
