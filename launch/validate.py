@@ -562,6 +562,14 @@ def couette(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions | No
                           lambda y, t: couette_velocity(y, t, U, nu, L), "U", "Start-up Couette flow")
 
 
+def still_surface(sim, x_body: float, clearance: float, dx: float) -> float:
+    """The height of the still water more than ``clearance`` (m) to either side of a floating body at
+    x = ``x_body``: its top particle layer + dx / 2 (2D)."""
+    x = sim.state.x[: sim.state.n_owned]
+    far = np.abs(x[:, 0] - x_body) > clearance
+    return float(x[far, 1].max()) + 0.5 * dx
+
+
 def floating_box(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions | None = None) -> list[Metric]:
     """A box of half the water's density floating in a tank (a floating body, heave only): its mean
     draft over the last two seconds of four against Archimedes' (density ratio x height)."""
@@ -580,10 +588,7 @@ def floating_box(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions
         sim.step(dt_cap=t_end - sim.t)
         clock.tick()
         if sim.step_index % 20 == 0 or sim.t >= t_end:
-            s = sim.state
-            x = s.x[: s.n_owned]
-            far = np.abs(x[:, 0] - box.center[0]) > box.size[0] / 2 + 0.2  # the still water by the walls
-            surface = x[far, 1].max() + 0.5 * dx                              # top layer + dx/2
+            surface = still_surface(sim, box.center[0], box.size[0] / 2 + 0.2, dx)
             bottom = box.center[1] + body.x[1] - 0.5 * height
             times.append(sim.t)
             drafts.append(surface - bottom)
@@ -641,11 +646,8 @@ def floating_square(quick: bool, out: Path, backend: str = "cpu", opts: CaseOpti
         sim.step(dt_cap=t_end - sim.t)
         clock.tick()
         if sim.step_index % 20 == 0 or sim.t >= t_end:
-            s = sim.state
-            x = s.x[: s.n_owned]
             centre = np.array(log_.center[:2]) + body.x[:2]
-            far = np.abs(x[:, 0] - centre[0]) > 0.5 * math.sqrt(2.0) * side + 0.1  # the still water by the walls
-            surface = x[far, 1].max() + 0.5 * dx                                      # top layer + dx/2
+            surface = still_surface(sim, centre[0], 0.5 * math.sqrt(2.0) * side + 0.1, dx)
             times.append(sim.t)
             angles.append(log_.rotation[2] + body_angle(body))
             heights.append(centre[1] - surface)
