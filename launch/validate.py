@@ -112,6 +112,16 @@ class _Clock:
                 self.opts.stats[f"{name}_unconverged"] = st["unconverged"]
 
 
+def _sampled(sim, clock, t_end: float, every: int):
+    """Step ``sim`` to ``t_end`` (its last step shortened to land there), yielding after every
+    ``every``-th step and after the last: where a case samples its run."""
+    while sim.t < t_end:
+        sim.step(dt_cap=t_end - sim.t)
+        clock.tick()
+        if sim.step_index % every == 0 or sim.t >= t_end:
+            yield
+
+
 def _plot():
     import matplotlib
     matplotlib.use("Agg")
@@ -473,14 +483,11 @@ def oscillating_drop(quick: bool, out: Path, backend: str = "cpu", opts: CaseOpt
     # initial (lattice) disc so the discretisation of the circle does not bias them
     mx0, my0 = moments()
     times, a_sim, b_sim = [0.0], [radius], [radius]
-    while sim.t < t_end:
-        sim.step(dt_cap=t_end - sim.t)
-        clock.tick()
-        if sim.step_index % 10 == 0 or sim.t >= t_end:
-            mx, my = moments()
-            times.append(sim.t)
-            a_sim.append(radius * math.sqrt(mx / mx0))
-            b_sim.append(radius * math.sqrt(my / my0))
+    for _ in _sampled(sim, clock, t_end, 10):
+        mx, my = moments()
+        times.append(sim.t)
+        a_sim.append(radius * math.sqrt(mx / mx0))
+        b_sim.append(radius * math.sqrt(my / my0))
     clock.done()
     peaks = _maxima(np.array(times), np.array(a_sim))
     period_ref = ref_peaks[1][0] - ref_peaks[0][0]
@@ -584,15 +591,12 @@ def floating_box(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions
     t_end, window = 4.0, 2.0
     clock = _Clock(sim, opts, "floating_box", t_end)
     times, drafts, forces = [], [], []
-    while sim.t < t_end:
-        sim.step(dt_cap=t_end - sim.t)
-        clock.tick()
-        if sim.step_index % 20 == 0 or sim.t >= t_end:
-            surface = still_surface(sim, box.center[0], box.size[0] / 2 + 0.2, dx)
-            bottom = box.center[1] + body.x[1] - 0.5 * height
-            times.append(sim.t)
-            drafts.append(surface - bottom)
-            forces.append(body.force[1] / (body.mass * abs(scene.forces.gravity[1])))
+    for _ in _sampled(sim, clock, t_end, 20):
+        surface = still_surface(sim, box.center[0], box.size[0] / 2 + 0.2, dx)
+        bottom = box.center[1] + body.x[1] - 0.5 * height
+        times.append(sim.t)
+        drafts.append(surface - bottom)
+        forces.append(body.force[1] / (body.mass * abs(scene.forces.gravity[1])))
     clock.done()
     times, drafts, forces = np.array(times), np.array(drafts), np.array(forces)
     late = times >= t_end - window
@@ -642,15 +646,12 @@ def floating_square(quick: bool, out: Path, backend: str = "cpu", opts: CaseOpti
     t_end, window = 5.0, 2.0
     clock = _Clock(sim, opts, "floating_square", t_end)
     times, angles, heights = [], [], []
-    while sim.t < t_end:
-        sim.step(dt_cap=t_end - sim.t)
-        clock.tick()
-        if sim.step_index % 20 == 0 or sim.t >= t_end:
-            centre = np.array(log_.center[:2]) + body.x[:2]
-            surface = still_surface(sim, centre[0], 0.5 * math.sqrt(2.0) * side + 0.1, dx)
-            times.append(sim.t)
-            angles.append(log_.rotation[2] + body_angle(body))
-            heights.append(centre[1] - surface)
+    for _ in _sampled(sim, clock, t_end, 20):
+        centre = np.array(log_.center[:2]) + body.x[:2]
+        surface = still_surface(sim, centre[0], 0.5 * math.sqrt(2.0) * side + 0.1, dx)
+        times.append(sim.t)
+        angles.append(log_.rotation[2] + body_angle(body))
+        heights.append(centre[1] - surface)
     clock.done()
     times, angles, heights = np.array(times), np.array(angles), np.array(heights)
     late = times >= t_end - window
@@ -718,12 +719,9 @@ def settling_cylinder(quick: bool, out: Path, backend: str = "cpu", opts: CaseOp
     t_end, window = 0.4, 0.15
     clock = _Clock(sim, opts, "settling_cylinder", t_end)
     times, speeds = [], []
-    while sim.t < t_end:
-        sim.step(dt_cap=t_end - sim.t)
-        clock.tick()
-        if sim.step_index % 10 == 0 or sim.t >= t_end:
-            times.append(sim.t)
-            speeds.append(-body.v[1])
+    for _ in _sampled(sim, clock, t_end, 10):
+        times.append(sim.t)
+        speeds.append(-body.v[1])
     clock.done()
     times, speeds = np.array(times), np.array(speeds)
     late = times >= t_end - window
