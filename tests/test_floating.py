@@ -19,6 +19,13 @@ FLOATING = CONFIGS / "floating_box_2d.toml"
 COARSE = ["particles.spacing=0.02", "forces.ramp_time=0.02"]
 
 
+def _checkpoint(root, sim):
+    """Write ``sim``'s checkpoint under ``root``; the path of its manifest."""
+    part = checkpoint.write_part(root, sim.step_index, 0, sim)
+    checkpoint.commit(root, sim.step_index, checkpoint.sim_info(sim), sim.scene.to_dict(), [part])
+    return root / f"step_{sim.step_index:08d}" / "manifest.json"
+
+
 def _one_two_peers_and_resumed(tmp_path, scene, steps=40):
     """``scene`` run for ``steps`` steps in one process (checkpointed half way), on two in-process
     peers, and resumed from that checkpoint: (one, cluster, resumed, the checkpoint's manifest)."""
@@ -26,9 +33,7 @@ def _one_two_peers_and_resumed(tmp_path, scene, steps=40):
     for _ in range(steps // 2):
         one.step()
     root = tmp_path / "checkpoints"
-    part = checkpoint.write_part(root, one.step_index, 0, one)
-    checkpoint.commit(root, one.step_index, checkpoint.sim_info(one), one.scene.to_dict(), [part])
-    manifest = json.loads(next(root.glob("step_*/manifest.json")).read_text())
+    manifest = json.loads(_checkpoint(root, one).read_text())
     while one.step_index < steps:
         one.step()
     cluster = InProcessCluster(scene, 2, "f64")
@@ -69,9 +74,7 @@ def test_a_checkpoint_without_the_body_or_with_a_bad_one_is_refused(tmp_path):
     sim = Simulation(scene, "f64")
     sim.step()
     root = tmp_path / "checkpoints"
-    part = checkpoint.write_part(root, sim.step_index, 0, sim)
-    checkpoint.commit(root, sim.step_index, checkpoint.sim_info(sim), sim.scene.to_dict(), [part])
-    manifest = next(root.glob("step_*")) / "manifest.json"
+    manifest = _checkpoint(root, sim)
     good = json.loads(manifest.read_text())
     assert len(good["bodies"]) == 1 and len(good["bodies"][0]) == 9
     for bad, message in (([[0.0] * 8], "bodies = [[0.0, 0.0"), ([[0.0] * 8 + [float("nan")]], "bodies"),
@@ -208,9 +211,7 @@ def test_a_checkpoint_with_a_bad_orientation_is_refused_and_nothing_is_restored(
     sim = Simulation(scene, "f64")
     sim.step()
     root = tmp_path / "checkpoints"
-    part = checkpoint.write_part(root, sim.step_index, 0, sim)
-    checkpoint.commit(root, sim.step_index, checkpoint.sim_info(sim), sim.scene.to_dict(), [part])
-    manifest = next(root.glob("step_*")) / "manifest.json"
+    manifest = _checkpoint(root, sim)
     good = json.loads(manifest.read_text())
     state = good["bodies"][0]
     sheared = state[:9] + [1.0, 0.5, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0] + state[18:]
