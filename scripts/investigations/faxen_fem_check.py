@@ -12,6 +12,11 @@ The drag per unit length, F / (mu U), is the sum of the reactions at the cylinde
 degrees of freedom. The mesh is ``size`` x a at the cylinder, 0.15 l far from it. Measured
 2026-12-05: k = 0.25: 21.9386 (size 0.1) and 21.9571 (0.05) against the series' 21.9643; k = 0.4:
 52.2905 (0.1) against 52.5688; a closed box 6 l long (ends 3) gives the same 21.9386 as 20 l.
+
+    .venv/bin/python scripts/investigations/settling_cylinder_drag.py --profile /tmp/profile.npz
+    /tmp/fem/bin/python scripts/investigations/faxen_fem_check.py --size 0.1 --compare /tmp/profile.npz
+
+compares the flow around the settling cylinder with the finite elements' at the same speed.
 """
 import argparse
 import math
@@ -66,8 +71,9 @@ def mesh_of(k: float, size: float, ends: float, folder: Path) -> MeshTri:
     return MeshTri(m.points[:, :2].T.copy(), m.cells_dict["triangle"].T.copy())
 
 
-def drag(k: float, size: float, ends: float) -> tuple[float, int]:
-    """(F / (mu U), triangles) of the cylinder of radius k in the closed box (module docstring)."""
+def drag(k: float, size: float, ends: float):
+    """(F / (mu U), triangles, velocity basis, velocity) of the cylinder of radius k in the closed box
+    (module docstring)."""
     with tempfile.TemporaryDirectory() as tmp:
         mesh = mesh_of(k, size, ends, Path(tmp))
     ub, pb = Basis(mesh, ElementVectorH1(ElementTriP2()), intorder=4), Basis(mesh, ElementTriP1(), intorder=4)
@@ -83,7 +89,32 @@ def drag(k: float, size: float, ends: float) -> tuple[float, int]:
     u = np.zeros(K.shape[0])
     u[moving] = 1.0
     u = solve(*condense(K, np.zeros(K.shape[0]), x=u, D=np.concatenate([ux, uy])))
-    return float((K @ u)[moving].sum()), mesh.nelements
+    return float((K @ u)[moving].sum()), mesh.nelements, ub, u[: ub.N]
+
+
+def compare(profile, size: float):
+    """The SPH particles' velocity (the body moving down, -y) mapped to the finite elements' frame
+    (the body moving along +x: x_fe = -y, y_fe = x, u_fe = -v_y), binned beside the body and along the
+    axis, against the finite elements at the same points; both in units of the body's speed."""
+    k = float(profile["k"])
+    _, _, ub, u = drag(k, size, 3.0)  # the case's tank: the body 3 half-widths from floor and surface
+
+    def fe(px, py):
+        return float((ub.probes(np.array([[px], [py]])) @ u)[0])
+    p = profile["points"]
+    xf, yf, uf = -p[:, 1], p[:, 0], -p[:, 3]
+    print("beside the body (x ~ 0): y / l, SPH, finite elements")
+    beside = np.abs(xf) < 0.03
+    for y in np.arange(k + 0.025, 1.0, 0.05):
+        m = beside & (np.abs(np.abs(yf) - y) < 0.025)
+        if m.any():
+            print(f"  {y:.3f}  {uf[m].mean():+.3f}  {fe(0.0, y):+.3f}")
+    print("along the axis (y ~ 0, + ahead): x / l, SPH, finite elements")
+    axis = np.abs(yf) < 0.03
+    for x in [-2.0, -1.5, -1.0, -0.5, 0.5, 1.0, 1.5, 2.0]:
+        m = axis & (np.abs(xf - x) < 0.05)
+        if m.any():
+            print(f"  {x:+.2f}  {uf[m].mean():+.3f}  {fe(x, 0.0):+.3f}")
 
 
 def main():
@@ -91,8 +122,14 @@ def main():
     ap.add_argument("--k", type=float, default=0.25, help="radius / half-width (default 0.25)")
     ap.add_argument("--size", type=float, default=0.05, help="element size at the cylinder / radius (default 0.05)")
     ap.add_argument("--ends", type=float, default=10.0, help="the box's half-length / half-width (default 10)")
+    ap.add_argument("--compare", type=Path, default=None,
+                    help="an SPH run's profile (settling_cylinder_drag.py --profile): its velocity along the "
+                         "axis and across the channel beside the body, against the finite elements' (k from it)")
     args = ap.parse_args()
-    value, triangles = drag(args.k, args.size, args.ends)
+    if args.compare:
+        compare(np.load(args.compare), args.size)
+        return
+    value, triangles, _, _ = drag(args.k, args.size, args.ends)
     series = faxen_drag(args.k)
     print(f"k = {args.k}: finite elements F / (mu U) = {value:.4f} ({triangles} triangles), Faxen's series "
           f"{series:.4f}, ratio {value / series:.4f}")

@@ -1,0 +1,71 @@
+"""Why the settling cylinder is slow (docs/VALIDATION.md, "A cylinder settling between two walls"):
+the scene with --set overrides, its mean settling speed over t = 0.2-0.3 s in units of the terminal
+speed for a density difference of 1000 kg/m^3 and the drag F = mu U lambda of the given reference.
+
+    .venv/bin/python scripts/investigations/settling_cylinder_drag.py                           # the case: 0.677
+    .venv/bin/python scripts/investigations/settling_cylinder_drag.py --set sph.nu=2e-3         # 0.826
+    .venv/bin/python scripts/investigations/settling_cylinder_drag.py \\
+        --set "forces.gravity=[0.0, -0.981]" --set obstacles[0].density=11000.0                 # 0.997
+    .venv/bin/python scripts/investigations/settling_cylinder_drag.py --lambda 29.1278 --area 2.5e-5 \\
+        --set 'obstacles[0].shape="box"' --set "obstacles[0].size=[0.005, 0.005]"             # a square: 0.628
+
+(lambda 29.1278: the square's finite-element drag, a variant of faxen_fem_check.py with a square
+hole of side 2a). A weight less buoyancy other than 1000 kg/m^3 x g0 x area reads as a speed
+relative to that reference: a neutrally buoyant body's speed is in units of the case's U.
+``--profile OUT.npz`` also saves the particles' positions and velocities over t = 0.25-0.3 s in
+units of the half-width and of the body's speed, for a comparison with the finite elements.
+"""
+import argparse
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))
+
+from launch.validate import faxen_drag  # noqa: E402
+from sphcore.scene import load_scene  # noqa: E402
+from sphcore.solver import Simulation  # noqa: E402
+
+G0 = 9.81  # m/s^2: the case's gravity, which sets the reference speed
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
+    ap.add_argument("--lambda", dest="lam", type=float, default=None,
+                    help="the reference drag F / (mu U) (default: Faxen's for the scene's cylinder)")
+    ap.add_argument("--area", type=float, default=None, help="the body's area in m^2 (default: pi a^2)")
+    ap.add_argument("--until", type=float, default=0.3, help="simulated seconds (default 0.3)")
+    ap.add_argument("--profile", type=Path, default=None)
+    args = ap.parse_args()
+    scene = load_scene(ROOT / "configs" / "settling_cylinder_2d.toml", args.overrides)
+    body_spec = scene.obstacles[0]
+    half = 0.5 * scene.domain.size[0]
+    lam = args.lam or faxen_drag(body_spec.radius / half)
+    area = args.area or math.pi * body_spec.radius ** 2
+    U = 1000.0 * G0 * area / (scene.fluid.rest_density * scene.sph.nu * lam)
+    sim = Simulation(scene, "f64")
+    body = sim.model.walls.bodies[0]
+    speeds, frames, body_speeds = [], [], []
+    while sim.t < args.until:
+        sim.step()
+        if sim.t > args.until - 0.1:
+            speeds.append(-body.v[1] / U)
+        if args.profile and sim.t > args.until - 0.05 and sim.step_index % 20 == 0:
+            n = sim.state.n_owned
+            centre = np.array(body_spec.center[:2]) + body.x[:2]
+            frames.append(np.column_stack([(sim.state.x[:n, :2] - centre) / half, sim.state.v[:n, :2] / -body.v[1]]))
+            body_speeds.append(-body.v[1])
+    print(f"{' '.join(args.overrides) or '(the case)'}: mean speed / U over t = {args.until - 0.1:g}-{args.until:g} s "
+          f"{np.mean(speeds):.4f} (min {min(speeds):.3f}, max {max(speeds):.3f}); U = {1e3 * U:.3f} mm/s, "
+          f"lambda = {lam:.4f}")
+    if args.profile:
+        np.savez(args.profile, points=np.concatenate(frames), speed=np.mean(body_speeds), k=body_spec.radius / half)
+
+
+if __name__ == "__main__":
+    main()
