@@ -12,8 +12,13 @@ speed for a density difference of 1000 kg/m^3 and the drag F = mu U lambda of th
 (lambda 29.1278: the square's finite-element drag, a variant of faxen_fem_check.py with a square
 hole of side 2a). A weight less buoyancy other than 1000 kg/m^3 x g0 x area reads as a speed
 relative to that reference: a neutrally buoyant body's speed is in units of the case's U.
-``--profile OUT.npz`` also saves the particles' positions and velocities over t = 0.25-0.3 s in
-units of the half-width and of the body's speed, for a comparison with the finite elements.
+``--held`` holds the body (free across the channel only, where the flow pushes it neither way)
+and prints the fluid's vertical force on it over the last 0.1 s in units of the buoyancy rho0 g pi a^2:
+the pressure-force estimate of physics/bodies.py in still water (1.04 with the symmetric form; 0.54-0.61
+with the difference form of ``difference_form.patch``, run with ``--set sph.pressure_gradient='"difference"'
+--set terms.shifting=2.0``). ``--profile OUT.npz`` also saves the particles' positions and velocities
+over t = 0.25-0.3 s in units of the half-width and of the body's speed, for a comparison with the
+finite elements.
 """
 import argparse
 import math
@@ -41,26 +46,30 @@ def main():
     ap.add_argument("--area", type=float, default=None, help="the body's area in m^2 (default: pi a^2)")
     ap.add_argument("--until", type=float, default=0.3, help="simulated seconds (default 0.3)")
     ap.add_argument("--profile", type=Path, default=None)
+    ap.add_argument("--held", action="store_true", help="hold the body: its force over buoyancy, not its speed")
     args = ap.parse_args()
-    scene = load_scene(ROOT / "configs" / "settling_cylinder_2d.toml", args.overrides)
+    held = ["obstacles[0].free=[true, false]"] if args.held else []
+    scene = load_scene(ROOT / "configs" / "settling_cylinder_2d.toml", [*held, *args.overrides])
     body_spec = scene.obstacles[0]
     half = 0.5 * scene.domain.size[0]
     lam = args.lam or faxen_drag(body_spec.radius / half)
     area = args.area or math.pi * body_spec.radius ** 2
     U = 1000.0 * G0 * area / (scene.fluid.rest_density * scene.sph.nu * lam)
+    buoyancy = scene.fluid.rest_density * G0 * area
     sim = Simulation(scene, "f64")
     body = sim.model.walls.bodies[0]
     speeds, frames, body_speeds = [], [], []
     while sim.t < args.until:
         sim.step()
         if sim.t > args.until - 0.1:
-            speeds.append(-body.v[1] / U)
+            speeds.append(body.force[1] / buoyancy if args.held else -body.v[1] / U)
         if args.profile and sim.t > args.until - 0.05 and sim.step_index % 20 == 0:
             n = sim.state.n_owned
             centre = np.array(body_spec.center[:2]) + body.x[:2]
             frames.append(np.column_stack([(sim.state.x[:n, :2] - centre) / half, sim.state.v[:n, :2] / -body.v[1]]))
             body_speeds.append(-body.v[1])
-    print(f"{' '.join(args.overrides) or '(the case)'}: mean speed / U over t = {args.until - 0.1:g}-{args.until:g} s "
+    what = "force / buoyancy, the body held," if args.held else "speed / U"
+    print(f"{' '.join(args.overrides) or '(the case)'}: mean {what} over t = {args.until - 0.1:g}-{args.until:g} s "
           f"{np.mean(speeds):.4f} (min {min(speeds):.3f}, max {max(speeds):.3f}); U = {1e3 * U:.3f} mm/s, "
           f"lambda = {lam:.4f}")
     if args.profile:
