@@ -241,7 +241,8 @@ def floating_body(scene: Scene, ob, wall: int) -> FloatingBody:
         Rob = matmul3(container_frame(scene)[1], Rob)
     inertia = matmul3(matmul3(Rob, inertia_tensor(ob.shape, scene.dim, mass, ob.size, ob.radius)), Rob.T)
     free_rotation = np.array([1.0 if f else 0.0 for f in ob.free_rotation])
-    return FloatingBody(wall=wall, mass=mass, free=free, free_rotation=free_rotation, inertia=inertia, reach=reach)
+    return FloatingBody(wall=wall, mass=mass, free=free, free_rotation=free_rotation, inertia=inertia, reach=reach,
+                        density=ob.density)
 
 
 def _pad_rows(rows, dtype) -> np.ndarray:

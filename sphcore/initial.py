@@ -241,6 +241,35 @@ def generate_particles(scene: Scene, walls: Walls, slab_points: int = SLAB_POINT
     return ids, x, v
 
 
+FULL = 0.97  # forces.hydrostatic = "removed": the share of the container's lattice the particles must fill
+
+
+def check_full(scene: Scene, walls: Walls, n_particles: int):
+    """forces.hydrostatic = "removed" assumes no free surface anywhere, so the fluid must fill its
+    closed container. The container holds the lattice of the particles' spacing over the domain's
+    box less the points within half a spacing of a wall (carved as blocks are); SceneError if the
+    particles are fewer than FULL of those points, naming both counts."""
+    dx = scene.particles.spacing
+    d = scene.dim
+    axes = [walls.lo[k] + (np.arange(int(math.floor((walls.hi[k] - walls.lo[k]) / dx))) + 0.5) * dx for k in range(d)]
+    data = walls.data.astype(np.float64)
+    holds = 0
+    for last in axes[-1]:  # one slab of the lattice at a time
+        grids = np.meshgrid(*axes[:-1], indexing="ij")
+        pts = np.zeros((grids[0].size, 3))
+        for k in range(d - 1):
+            pts[:, k] = grids[k].ravel()
+        pts[:, d - 1] = last
+        dist = np.empty(len(pts))
+        min_wall_distance(walls.kind, data, pts, dist)
+        holds += int(np.count_nonzero(dist >= 0.5 * dx - 1e-12 * dx))
+    if n_particles < FULL * holds:
+        raise SceneError(f"forces.hydrostatic = 'removed': the fluid must fill its closed container (no free "
+                         f"surface), but its {n_particles} particles fill {n_particles / max(holds, 1):.0%} of the "
+                         f"{holds} lattice sites the container holds at this spacing; fill it with [[fluid.blocks]], "
+                         f"or use forces.hydrostatic = 'resolved'")
+
+
 def lattice_neighbours(support: float, dim: int) -> int:
     """Neighbours of a particle inside a full lattice: the other lattice points closer than the
     support radius H = support x spacing."""

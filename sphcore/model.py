@@ -98,7 +98,7 @@ class Model:
         self.prm = make_params(
             dtype, H=self.H, h=self.h, s_w=s_w, s_g=s_g, s_l=s_l, w0=w(int(self.kernel), 0.0, self.H, s_w),
             rho0=rho0, c0=sph.sound_speed, clamp_negative=bool(sph.clamp_negative_pressure), alpha=sph.alpha,
-            mu=rho0 * self.nu, gravity=scene.forces.gravity, external=scene.forces.external,
+            mu=rho0 * self.nu, gravity=self.fluid_gravity(scene), external=scene.forces.external,
             central_omega2=scene.forces.central_omega ** 2, central=scene.forces.central_center,
             period=tuple(self.host_grid.period), xsph_eps=terms.xsph, shift_a=terms.shifting,
             sigma=terms.surface_tension,
@@ -136,6 +136,25 @@ class Model:
         kernel = KERNELS[scene.sph.kernel]
         H = scene.sph.support * scene.particles.spacing
         return make_grid(scene, build_walls(scene, kernel, H, np.float64), H, np.float64)
+
+    @staticmethod
+    def fluid_gravity(scene: Scene) -> tuple:
+        """The gravity the fluid feels: the scene's, or none with forces.hydrostatic = "removed" (the
+        fluid under its modified pressure p - rho0 g . x; the floating bodies get their weight less
+        their buoyancy instead, ``body_acceleration``)."""
+        return (0.0, 0.0, 0.0) if scene.forces.hydrostatic == "removed" else scene.forces.gravity
+
+    def body_acceleration(self, prm, t: float, body) -> tuple:
+        """The body force on floating body ``body`` at time t (m/s^2): the fluid's (gravity and
+        forces.external in ``prm``, ramped alike); with forces.hydrostatic = "removed", where the fluid
+        feels no gravity and its pressure no hydrostatic part, the body's gravity less its buoyancy,
+        (1 - rho0 / rho_body) zeta(t) g, added in float64."""
+        b = [float(prm.gravity_x + prm.external_x), float(prm.gravity_y + prm.external_y),
+             float(prm.gravity_z + prm.external_z)]
+        if self.scene.forces.hydrostatic == "removed":
+            share = (1.0 - self.scene.fluid.rest_density / body.density) * ramp_factor(t, self.scene.forces.ramp_time)
+            b = [b[k] + share * float(self.scene.forces.gravity[k]) for k in range(3)]
+        return tuple(b)
 
     def ramped_params(self, t: float):
         """Params at time t: the body forces scaled by the ramp factor zeta(t) (physics/external.py)."""

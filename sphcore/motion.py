@@ -310,7 +310,9 @@ class FloatingBody(_NoRotation):
 
         a = free (F / M + b),   u += dt a,   X += dt u,
 
-    b the body force of the fluid (gravity and forces.external, ramped alike), and, for a body that
+    b the body force of the fluid (gravity and forces.external, ramped alike; with forces.hydrostatic =
+    "removed" the fluid feels no gravity and b adds the body's weight less its buoyancy,
+    (1 - rho0 / rho_body) g: model.Model.body_acceleration), and, for a body that
     turns, Euler's equations in the world's axes with the body's inertia I = R I_0 R^T,
 
         I alpha = T - Omega x (I Omega)   on the free axes (alpha = 0 on the others),
@@ -329,6 +331,7 @@ class FloatingBody(_NoRotation):
     free_rotation: np.ndarray = field(default_factory=lambda: np.zeros(3))  # (3,) 1.0 about the axes it may turn
     inertia: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))   # I_0: as the scene places it (kg m^2)
     reach: float = 1.0                                        # the farthest point from its centre (m): T's unit
+    density: float = 0.0                                      # M / volume (kg/m^3): forces.hydrostatic = "removed"
     x: np.ndarray = field(default_factory=lambda: np.zeros(3))  # X (m) from the scene's position
     v: np.ndarray = field(default_factory=lambda: np.zeros(3))  # u (m/s)
     a: np.ndarray = field(default_factory=lambda: np.zeros(3))  # a (m/s^2)

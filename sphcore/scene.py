@@ -182,6 +182,13 @@ class Forces:
     gravity: tuple = spec((0.0, -9.81, 0.0), "gravitational acceleration (m/s^2)", length=VEC, control=LIVE)
     external: tuple = spec((0.0, 0.0, 0.0), "constant external acceleration, any direction (m/s^2)", length=VEC,
                            control=LIVE)
+    hydrostatic: str = spec("resolved", "resolved: gravity acts on the fluid, whose pressure carries its weight; "
+                            "removed: the fluid moves under its modified pressure p - rho0 g . x (no gravity on it) "
+                            "and each floating body feels its weight less its buoyancy, (1 - rho0 / rho_body) g. "
+                            "The same flow for a closed, full container (no free surface), without the "
+                            "hydrostatic pressure level's error in the pressure gradient (docs/VALIDATION.md, "
+                            "the settling cylinder); pressures (probes) are then p - rho0 g . x",
+                            choices=("resolved", "removed"), control=AT_START)
     ramp_time: float = spec(0.0, "gravity and external force rise smoothly from 0 over this time (s); 0 = at once",
                             range=(0.0, 1.0e6), control=LIVE)
     central_omega: float = spec(0.0, "central force field a = -omega^2 (x - central_center) (1/s; 0 = off), e.g. "
@@ -1020,6 +1027,15 @@ def _check_combinations(s: Scene, files: bool = True, backend: str = "cpu") -> S
     if s.sph.solver == "dfsph" and s.sph.density == "continuity":
         raise SceneError("sph.density = 'continuity': sph.solver = 'dfsph' solves for the summation density "
                          "(use sph.density = 'summation', or sph.solver = 'wcsph')")
+    if s.forces.hydrostatic == "removed":
+        # the modified pressure has no hydrostatic part only where no free surface sets p = 0 somewhere
+        where = ("sph.clamp_negative_pressure = true (a free surface)" if s.sph.clamp_negative_pressure else
+                 "domain.container = 'none' (no closed container)" if dom.container == "none" else
+                 f"domain.periodic = {list(dom.periodic[: s.dim])!r}" if any(dom.periodic[: s.dim]) else
+                 "inlets or outlets" if (s.inlets or s.outlets) else "")
+        if where:
+            raise SceneError(f"forces.hydrostatic = 'removed': only for a closed container full of fluid (no free "
+                             f"surface), but the scene has {where}; use forces.hydrostatic = 'resolved'")
     if s.sph.background_pressure > 0.0:
         # a free surface under a background pressure has nothing to hold it: the fluid flies apart
         where = ("sph.solver = 'dfsph' (its pressure is solved, not an EOS)" if s.sph.solver == "dfsph" else

@@ -17,7 +17,7 @@ from sphcore.backends import cpu
 from sphcore.choices import Integrator
 from sphcore.halo import NULL_HALO, POSITIONS
 from sphcore.health import Health
-from sphcore.initial import generate_particles
+from sphcore.initial import check_full, generate_particles
 from sphcore.model import Model
 from sphcore.motion import FloatingBody
 from sphcore.open_boundary import OpenBoundaries
@@ -103,6 +103,8 @@ class Simulation:
         self._state = ParticleState.create(ids, x, v, np.full(len(ids), model.mass), model.dtype)
         self.n_particles = len(ids)  # all peers' particles now (inlets add, outlets remove: open_boundary.py)
         self.n_ids = self.open.n_initial if self.open.active else len(ids)  # the blocks' ids: 0 .. n_ids - 1
+        if scene.forces.hydrostatic == "removed":
+            check_full(scene, model.walls, self.n_particles)
         self._add_extra(self._state)
         self.grid = model.host_grid
         self.solver = SOLVERS[scene.sph.solver](self)  # the pressure solver's hooks into the step (solvers.py)
@@ -321,8 +323,8 @@ class Simulation:
                 e.run(st.DENSITY_UPDATE, dt=f(dt))                 # drho             -> carried rho
             e.run(st.INTEGRATE, dt=f(dt), dt_prev=f(self.dt_prev))
             for body, (force, torque) in zip(self.model.walls.bodies, body_forces):  # floating bodies: F, T, b ->
-                body.advance(force, (prm.gravity_x + prm.external_x, prm.gravity_y + prm.external_y,  # a, u, X (alpha,
-                                     prm.gravity_z + prm.external_z), dt, torque)                     # Omega, R)
+                body.advance(force, self.model.body_acceleration(prm, self.t, body), dt, torque)  # a, u, X (alpha,
+                                                                                                  # Omega, R)
                 self._check_body(body)
             self._move_walls(self.t + dt)                          # the collision guard: walls at t + dt
             self.leaks += int(e.run(st.BOUNDARIES, prm=prm))

@@ -24,6 +24,7 @@ PROMISED = {
     "floating_box_2d": (3_000, 5_000),   # "~4,000 particles"
     "floating_square_2d": (4_000, 6_000),  # "~5,000 particles"
     "settling_cylinder_2d": (3_300, 5_500),  # "~4,400 particles"
+    "settling_cylinder_closed_2d": (3_500, 5_900),  # "~4,700 particles"
     "cavity_2d": (1_900, 3_100),         # "2,500 particles"
     "channel_2d": (1_800, 3_000),        # "2400 particles"
     "circular_couette_2d": (2_800, 4_700),  # "3,770 particles"

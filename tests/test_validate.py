@@ -83,7 +83,7 @@ def test_the_help_names_every_case(capsys):
 
 def test_unknown_cases_are_refused(capsys):
     assert main(["validate", "sloshing"]) == 2
-    assert "choose from hydrostatic, hydrostatic_3d, dam_break, dam_break_3d, taylor_green, oscillating_drop, poiseuille, couette, floating_box, floating_square, settling_cylinder, hydrostatic_probes" in capsys.readouterr().err
+    assert "choose from hydrostatic, hydrostatic_3d, dam_break, dam_break_3d, taylor_green, oscillating_drop, poiseuille, couette, floating_box, floating_square, settling_cylinder, settling_cylinder_closed, hydrostatic_probes" in capsys.readouterr().err
 
 
 def test_drop_reference_reproduces_the_published_period():
