@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 import os
 from concurrent.futures import ThreadPoolExecutor
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -144,16 +145,21 @@ def check_probes_inside(scene: Scene, walls: Walls):
 SLAB_POINTS = 1 << 20  # lattice points a thread fills at once (a large block is filled in parallel)
 
 
+def _kept_by_walls(walls: Walls, pts: np.ndarray, dx: float) -> np.ndarray:
+    """The points at least half a spacing from every wall (not inside an obstacle or beyond the container)."""
+    dist = np.full(len(pts), np.inf)
+    if walls.kind.shape[0]:
+        min_wall_distance(walls.kind, walls.data.astype(np.float64), pts, dist)
+    return dist >= 0.5 * dx * (1 - 1e-6)
+
+
 def _fill_slab(block, scene: Scene, walls: Walls, dx: float, slab, earlier):
     """(kept points, lattice points, points outside the domain) of one slab of a block: the points not
     outside the domain, not within half a spacing of a wall or inside an obstacle, not inside an
     earlier block's box (``earlier``: their (lo, hi) grown by half a spacing)."""
     pts = _block_points(block, scene, dx, slab)
     outside = _outside_domain(walls, scene, pts, dx)
-    dist = np.full(len(pts), np.inf)
-    if walls.kind.shape[0]:
-        min_wall_distance(walls.kind, walls.data.astype(np.float64), pts, dist)
-    keep = (dist >= 0.5 * dx * (1 - 1e-6)) & ~outside
+    keep = _kept_by_walls(walls, pts, dx) & ~outside
     for lo, hi in earlier:  # blocks must not overlap: skip points already filled by an earlier block
         keep &= ~np.all((pts >= lo) & (pts <= hi), axis=1)
     return pts[keep], len(pts), int(outside.sum())
@@ -246,23 +252,14 @@ FULL = 0.97  # forces.hydrostatic = "removed": the share of the container's latt
 
 def check_full(scene: Scene, walls: Walls, n_particles: int):
     """forces.hydrostatic = "removed" assumes no free surface anywhere, so the fluid must fill its
-    closed container. The container holds the lattice of the particles' spacing over the domain's
-    box less the points within half a spacing of a wall (carved as blocks are); SceneError if the
-    particles are fewer than FULL of those points, naming both counts."""
+    closed container. The container holds the lattice of a block as large as the domain's box, carved
+    as blocks are (``_cartesian_points``, ``_kept_by_walls``); SceneError if the particles are fewer
+    than FULL of its points, naming both counts."""
     dx = scene.particles.spacing
-    d = scene.dim
-    axes = [walls.lo[k] + (np.arange(int(math.floor((walls.hi[k] - walls.lo[k]) / dx))) + 0.5) * dx for k in range(d)]
-    data = walls.data.astype(np.float64)
-    holds = 0
-    for last in axes[-1]:  # one slab of the lattice at a time
-        grids = np.meshgrid(*axes[:-1], indexing="ij")
-        pts = np.zeros((grids[0].size, 3))
-        for k in range(d - 1):
-            pts[:, k] = grids[k].ravel()
-        pts[:, d - 1] = last
-        dist = np.empty(len(pts))
-        min_wall_distance(walls.kind, data, pts, dist)
-        holds += int(np.count_nonzero(dist >= 0.5 * dx - 1e-12 * dx))
+    box = SimpleNamespace(shape="box", min=walls.lo, max=walls.hi)
+    layers = max(int(round((walls.hi[scene.dim - 1] - walls.lo[scene.dim - 1]) / dx)), 1)
+    holds = sum(int(np.count_nonzero(_kept_by_walls(walls, _cartesian_points(box, scene.dim, dx, (k, k + 1)), dx)))
+                for k in range(layers))  # one layer of the lattice at a time
     if n_particles < FULL * holds:
         raise SceneError(f"forces.hydrostatic = 'removed': the fluid must fill its closed container (no free "
                          f"surface), but its {n_particles} particles fill {n_particles / max(holds, 1):.0%} of the "
