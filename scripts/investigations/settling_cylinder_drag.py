@@ -31,10 +31,41 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from launch.validate import faxen_drag  # noqa: E402
+from sphcore.boundaries import table_end, wall_tables  # noqa: E402
+from sphcore.choices import KERNELS  # noqa: E402
 from sphcore.scene import load_scene  # noqa: E402
 from sphcore.solver import Simulation  # noqa: E402
 
 G0 = 9.81  # m/s^2: the case's gravity, which sets the reference speed
+
+
+def around_the_body(sim, body_spec, body):
+    """The held body's neighbourhood at the end: the vertical pressure gradient fitted in three layers
+    of particles around it (p = c0 + c1 sin(theta) + c2 cos(theta); rho g in still water), how many
+    particles lie within H above and below it, and the part of the body's force estimate that a
+    uniform pressure makes through their arrangement: sum_i w_i n_i times the particles' mean pressure,
+    w_i = theta_i m_i 2 rho0 G0(d_i) / rho_i^2 (physics/bodies.py's weights), over the buoyancy."""
+    scene, n = sim.scene, sim.state.n_owned
+    x, p, rho = sim.state.x[:n], sim.state.p[:n], sim.state.rho[:n]
+    fill, m = sim.engine.scratch.fill[:n], sim.state.m[:n]
+    dx, a, rho0 = scene.particles.spacing, body_spec.radius, scene.fluid.rest_density
+    g = abs(scene.forces.gravity[1])
+    centre = np.array(body_spec.center[:2]) + body.x[:2]
+    r = np.hypot(x[:, 0] - centre[0], x[:, 1] - centre[1])
+    ny, gap = (x[:, 1] - centre[1]) / r, r - a
+    for lo, hi in ((0, 1), (1, 2), (2, 3)):
+        shell = (gap > lo * dx) & (gap <= hi * dx)
+        fit = np.linalg.lstsq(np.c_[np.ones(shell.sum()), ny[shell], (x[shell, 0] - centre[0]) / r[shell]],
+                              p[shell], rcond=None)[0]
+        print(f"  layer {lo}-{hi} spacings: {shell.sum()} particles, dp/dy {fit[1] / r[shell].mean():.0f} Pa/m "
+              f"(rho0 g = {rho0 * g:.0f})")
+    tables = wall_tables(KERNELS[scene.sph.kernel], scene.dim, sim.H, dx)
+    G0 = np.interp(gap, np.linspace(0.0, table_end(sim.H, dx), tables.shape[1]), tables[1])
+    near = gap < sim.H
+    w = fill * m * 2.0 * rho0 * G0 / rho ** 2
+    print(f"  within H: {np.count_nonzero(near & (ny > 0.5))} particles above the body, "
+          f"{np.count_nonzero(near & (ny < -0.5))} below; sum w n_y x mean p ({p[near].mean():.0f} Pa) = "
+          f"{np.sum((w * ny)[near]) * p[near].mean() / (rho0 * g * math.pi * a * a):+.3f} of the buoyancy")
 
 
 def main():
@@ -72,6 +103,8 @@ def main():
     print(f"{' '.join(args.overrides) or '(the case)'}: mean {what} over t = {args.until - 0.1:g}-{args.until:g} s "
           f"{np.mean(speeds):.4f} (min {min(speeds):.3f}, max {max(speeds):.3f}); U = {1e3 * U:.3f} mm/s, "
           f"lambda = {lam:.4f}")
+    if args.held:
+        around_the_body(sim, body_spec, body)
     if args.profile:
         np.savez(args.profile, points=np.concatenate(frames), speed=np.mean(body_speeds), k=body_spec.radius / half)
 
