@@ -20,6 +20,7 @@ from sphcore.motion import FloatingBody, Motion, inertia_tensor, matmul3, matvec
 from sphcore.physics.kernels import dw_dr, kernel_constants, w
 from sphcore.physics.damping import DAMPING_COLUMNS
 from sphcore.physics.open_boundary import ZONE_COLUMNS, ZONE_FAR, ZONE_INLET, ZONE_NONE, ZONE_OUTLET
+from sphcore.physics.traction import surface_points
 from sphcore.physics.walls import flag_near_cells
 from sphcore.scene import Scene
 
@@ -241,8 +242,11 @@ def floating_body(scene: Scene, ob, wall: int) -> FloatingBody:
         Rob = matmul3(container_frame(scene)[1], Rob)
     inertia = matmul3(matmul3(Rob, inertia_tensor(ob.shape, scene.dim, mass, ob.size, ob.radius)), Rob.T)
     free_rotation = np.array([1.0 if f else 0.0 for f in ob.free_rotation])
+    surface = ()
+    if scene.sph.body_force == "traction":  # its quadrature points, as placed (physics/traction.py)
+        surface = surface_points(ob.shape, scene.dim, ob.radius, ob.size, Rob, scene.particles.spacing)
     return FloatingBody(wall=wall, mass=mass, free=free, free_rotation=free_rotation, inertia=inertia, reach=reach,
-                        density=ob.density)
+                        density=ob.density, surface=surface)
 
 
 def _pad_rows(rows, dtype) -> np.ndarray:

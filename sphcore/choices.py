@@ -30,6 +30,13 @@ class Viscosity(IntEnum):
     MORRIS = 3      # Morris, Fox & Zhu 1997 laminar viscosity, kinematic viscosity nu
 
 
+class PressureGradient(IntEnum):
+    """The pressure gradient of the WCSPH momentum equation (physics/pressure.py)."""
+
+    SYMMETRIC = 0   # Monaghan 1992: (p_i / rho_i^2 + p_j / rho_j^2), conserves momentum
+    DIFFERENCE = 1  # (p_j - p_i) / (rho_i rho_j) in the bulk, symmetric in the free-surface layer
+
+
 class Integrator(IntEnum):
     SYMPLECTIC_EULER = 0
     LEAPFROG = 1  # kick-drift-kick, velocities stored at half steps
@@ -50,4 +57,5 @@ KERNELS = {"muller": Kernel.MULLER, "cubic_spline": Kernel.CUBIC_SPLINE, "wendla
 EOSES = {"linear": EOS.LINEAR, "tait": EOS.TAIT}
 VISCOSITIES = {"none": Viscosity.NONE, "artificial": Viscosity.ARTIFICIAL, "muller": Viscosity.MULLER,
                "morris": Viscosity.MORRIS}
+PRESSURE_GRADIENTS = {"symmetric": PressureGradient.SYMMETRIC, "difference": PressureGradient.DIFFERENCE}
 INTEGRATORS = {"symplectic_euler": Integrator.SYMPLECTIC_EULER, "leapfrog": Integrator.LEAPFROG}

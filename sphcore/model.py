@@ -15,7 +15,7 @@ import numpy as np
 from sphcore import grid as grid_mod
 from sphcore import stages as st
 from sphcore.boundaries import build_walls, lattice_gradient_moment, lattice_sum, near_wall_cells, table_end
-from sphcore.choices import EOSES, INTEGRATORS, KERNELS, VISCOSITIES, Viscosity
+from sphcore.choices import EOSES, INTEGRATORS, KERNELS, PRESSURE_GRADIENTS, VISCOSITIES, Viscosity
 from sphcore.params import make_params
 from sphcore.physics.external import ramp_factor
 from sphcore.physics.kernels import kernel_constants, w
@@ -75,6 +75,7 @@ class Model:
         self.kernel = KERNELS[sph.kernel]
         self.eos = EOSES[sph.eos]
         self.viscosity = VISCOSITIES[sph.viscosity]
+        self.pressure_gradient = PRESSURE_GRADIENTS[sph.pressure_gradient]
         self.integrator = INTEGRATORS[scene.time.integrator]
         s_w, s_g, s_l = kernel_constants(self.kernel, scene.dim, self.H)
         self.gradient_moment = lattice_gradient_moment(self.kernel, scene.dim, self.H, dx)
@@ -124,6 +125,7 @@ class Model:
         self.extra_names = SOLVERS[sph.solver].carried + (("density",) if self.continuity else ())
         # the compile-time choices of this model's stages (stages.CHOICES); ``divergence`` is per call
         self.choices = {"kernel": int(self.kernel), "eos": int(self.eos), "viscosity": int(self.viscosity),
+                        "pressure_gradient": int(self.pressure_gradient),
                         "integrator": int(self.integrator), "periodic": self.periodic,
                         "neighbours": NEIGHBOURS[self.neighbours],
                         "pair_gradients": int(self.pair_gradients),

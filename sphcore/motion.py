@@ -299,7 +299,9 @@ class FloatingBody(_NoRotation):
     """A rigid obstacle moved by the fluid (two-way coupling): its wall row ``wall``, mass M (kg; kg/m
     in 2D), the axes it may move along (``free``, 1 or 0) and, if it turns, the axes it may turn
     about (``free_rotation``: world axes through its centre). Each step the fluid's force and torque
-    on it are the reaction to the wall terms its wall exerts on the particles,
+    on it are (with sph.body_force = "traction" instead the surface integral of the fluid's traction
+    at the points ``surface``, physics/traction.py) the reaction to the wall terms its wall exerts on
+    the particles,
 
         F = - sum_i f_i,    T = sum_i (x_i - c) x (-f_i),    f_i = m_i (a_i^pressure + a_i^viscous)
 
@@ -340,6 +342,7 @@ class FloatingBody(_NoRotation):
     alpha: np.ndarray = field(default_factory=lambda: np.zeros(3))  # alpha (rad/s^2)
     force: np.ndarray = field(default_factory=lambda: np.zeros(3))  # the fluid's last force on it (N; N/m in 2D)
     torque: np.ndarray = field(default_factory=lambda: np.zeros(3))  # ... and torque about its centre (N m; N)
+    surface: tuple = ()  # sph.body_force = "traction": (points, normals, areas) as placed (physics/traction.py)
 
     STATE = ("x", "v", "a", "R", "w", "alpha", "force", "torque")  # where it is and how it moves (solver._same)
 

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from sphcore.choices import EOSES, INTEGRATORS, KERNELS, VISCOSITIES
+from sphcore.choices import EOSES, INTEGRATORS, KERNELS, PRESSURE_GRADIENTS, VISCOSITIES
 
 
 class SceneError(ValueError):
@@ -149,6 +149,18 @@ class SPH:
                                       "where it would be negative (a lid-driven cavity's corner); wcsph, closed "
                                       "flows only (clamp_negative_pressure = false, no inlets or outlets); 0 = off",
                                       range=(0.0, 1.0e9), control=LIVE)
+    pressure_gradient: str = spec("symmetric", "wcsph: the momentum equation's pressure gradient. symmetric "
+                                  "(Monaghan 1992; conserves momentum) or difference: (p_j - p_i) in the bulk, "
+                                  "which a uniform pressure does not enter, and the symmetric form in the free "
+                                  "surface's layer; for slow viscous flow around bodies under a hydrostatic head "
+                                  "(physics/pressure.py), with terms.shifting > 0",
+                                  choices=tuple(PRESSURE_GRADIENTS), control=COMPILED)
+    body_force: str = spec("reaction", "how the fluid's force and torque on a floating body are measured: reaction "
+                           "(to the walls' push on the particles, physics/bodies.py; conserves momentum) or traction "
+                           "(the surface integral of -p n + mu (grad u + grad u^T) n, p and grad u fitted from the "
+                           "particles at points on the surface, physics/traction.py; exact for a uniform pressure "
+                           "whatever the particles' arrangement; needed with pressure_gradient = difference)",
+                           choices=("reaction", "traction"), control=WORLD)
     viscosity: str = spec("artificial", "viscosity model", choices=tuple(VISCOSITIES), control=COMPILED)
     alpha: float = spec(0.02, "artificial viscosity coefficient (viscosity = artificial)", range=(0.0, 10.0),
                         control=LIVE)
@@ -1036,6 +1048,26 @@ def _check_combinations(s: Scene, files: bool = True, backend: str = "cpu") -> S
         if where:
             raise SceneError(f"forces.hydrostatic = 'removed': only for a closed container full of fluid (no free "
                              f"surface), but the scene has {where}; use forces.hydrostatic = 'resolved'")
+    if s.sph.pressure_gradient == "difference" and s.sph.solver == "dfsph":
+        raise SceneError("sph.pressure_gradient = 'difference': a WCSPH form (the forces pass); sph.solver = 'dfsph' "
+                         "solves its pressure and applies it with its own symmetric term (use 'symmetric', or "
+                         "sph.solver = 'wcsph')")
+    floating = [i for i, ob in enumerate(s.obstacles) if ob.density > 0.0]
+    if s.sph.pressure_gradient == "difference" and floating and s.sph.body_force != "traction":
+        # the walls push a bulk particle with the hydrostatic part only: their reaction is no force on the body
+        raise SceneError(f"sph.pressure_gradient = 'difference' with floating bodies (obstacles[{floating[0]}]) needs "
+                         f"sph.body_force = 'traction': in that form the walls do not push the particles with their "
+                         f"pressure, so the reaction to that push is not the fluid's force on the body; the scene "
+                         f"has sph.body_force = {s.sph.body_force!r}")
+    if s.sph.body_force == "traction" and floating and s.terms.wall_friction > 0.0:
+        raise SceneError(f"sph.body_force = 'traction' does not include the walls' turbulent friction "
+                         f"(terms.wall_friction = {s.terms.wall_friction!r}) in a floating body's force; use "
+                         f"sph.body_force = 'reaction' or terms.wall_friction = 0")
+    if s.sph.pressure_gradient == "difference" and s.terms.shifting <= 0.0:
+        # nothing else holds the particles apart: they pair and clump (a dam break reached the speed of sound)
+        raise SceneError("sph.pressure_gradient = 'difference' needs terms.shifting > 0 (typically 1-2): a uniform "
+                         "pressure does not push the particles apart in that form, so only shifting keeps them "
+                         f"ordered; the scene has terms.shifting = {s.terms.shifting!r}")
     if s.sph.background_pressure > 0.0:
         # a free surface under a background pressure has nothing to hold it: the fluid flies apart
         where = ("sph.solver = 'dfsph' (its pressure is solved, not an EOS)" if s.sph.solver == "dfsph" else

@@ -21,6 +21,7 @@ from sphcore.initial import check_full, generate_particles
 from sphcore.model import Model
 from sphcore.motion import FloatingBody
 from sphcore.open_boundary import OpenBoundaries
+from sphcore.physics import traction
 from sphcore.probes import Probes
 from sphcore.scene import Scene
 from sphcore.solvers import SOLVERS
@@ -343,6 +344,9 @@ class Simulation:
         floating body, summed exactly over all peers (physics/bodies.py)."""
         out = []
         for k, body in enumerate(self.model.walls.bodies):
+            if body.surface:  # sph.body_force = "traction"
+                out.append((yield from self._body_traction(halo, k, body)))
+                continue
             f = self.dtype.type
             quantum = f(body.quantum((prm.gravity_x + prm.external_x, prm.gravity_y + prm.external_y,
                                       prm.gravity_z + prm.external_z)))  # the kernel's, exactly
@@ -353,6 +357,46 @@ class Simulation:
             units = np.array(units, dtype=np.float64)
             out.append((units[:3] * float(quantum), units[3:] * float(torque_quantum)))
         return out
+
+    def _body_traction(self, halo, k, body):
+        """Generator: (F, T) of floating body ``body`` as the surface integral of the fluid's traction
+        (physics/traction.py): each peer's owned rows near the body give integer moments at its
+        surface points, summed exactly over the peers; every peer then fits and sums the same."""
+        with self.timers("body_traction"):
+            w = self.model.walls
+            centre = w.rest[body.wall, 0:3] + body.x
+            rel_points, rel_normals, areas = body.surface
+            points = centre + rel_points @ body.R.T
+            normals = rel_normals @ body.R.T
+            arm = points - centre
+            wall_velocity = body.v + np.cross(body.w, arm)  # U + Omega x (s - c)
+            s = self.state
+            n = s.n_owned
+            H = float(self.model.H)
+            reach = float(np.sqrt((rel_points * rel_points).sum(axis=1)).max()) + H
+            d = s.x[:n].astype(np.float64) - centre
+            rows = np.nonzero((d * d).sum(axis=1) < reach * reach)[0].astype(np.int64)
+            scales = self._traction_scales()
+            moments = np.zeros((points.shape[0], traction.MOMENTS), dtype=np.int64)
+            traction.traction_moments(points, wall_velocity, rows, s.x, s.v, s.m, s.rho, s.p, int(self.model.kernel),
+                                      H, float(self.prm.s_w), scales[0], scales[1], moments)
+        moments = yield from halo.reduce_sums(self, f"body{k}", moments.ravel())
+        with self.timers("body_traction"):
+            F, T, _ = traction.traction_from_moments(np.asarray(moments, dtype=np.int64).reshape(points.shape[0], -1),
+                                                     points, normals, areas, centre, self.scene.dim, H, scales[0],
+                                                     scales[1], scales[2])
+        return F, T
+
+    def _traction_scales(self):
+        """(p_scale, v_scale, mu) of the traction's moments: rho0 c0^2 (or rho0 |g| L), c0, and the
+        laminar viscosity's mu (0 with artificial viscosity or none)."""
+        sc = self.scene
+        rho0, c0 = sc.fluid.rest_density, sc.sph.sound_speed
+        g = np.add(sc.forces.gravity, sc.forces.external)
+        L = float(np.linalg.norm(self.model.walls.hi - self.model.walls.lo))
+        p_scale = max(rho0 * c0 * c0, rho0 * float(np.linalg.norm(g)) * L, 1.0)
+        laminar = sc.sph.viscosity in ("morris", "muller")
+        return p_scale, max(c0, 1.0), (rho0 * sc.sph.nu if laminar else 0.0)
 
     def _check_body(self, body):
         """A floating body whose reference point leaves the domain's box (body-wall contact is not

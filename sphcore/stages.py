@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from functools import cached_property
 from types import MappingProxyType
 
-from sphcore.choices import EOS, Integrator, Kernel, Viscosity
+from sphcore.choices import EOS, Integrator, Kernel, PressureGradient, Viscosity
 from sphcore.grid import CELL_WALK, NEIGHBOUR_LISTS
 from sphcore.physics.damping import damping_row
 from sphcore.physics.continuity import density_update_row, diffusion_row
@@ -49,6 +49,8 @@ CHOICES = MappingProxyType({
     "kernel": (tuple(int(k) for k in Kernel), int(Kernel.WENDLAND_C2), "smoothing kernel family (choices.Kernel)"),
     "eos": (tuple(int(e) for e in EOS), int(EOS.TAIT), "equation of state (choices.EOS)"),
     "viscosity": (tuple(int(v) for v in Viscosity), int(Viscosity.ARTIFICIAL), "viscosity model (choices.Viscosity)"),
+    "pressure_gradient": (tuple(int(g) for g in PressureGradient), int(PressureGradient.SYMMETRIC),
+                          "the forces pass's pressure gradient (choices.PressureGradient, physics/pressure.py)"),
     "integrator": (tuple(int(g) for g in Integrator), int(Integrator.SYMPLECTIC_EULER), "time integrator"),
     "periodic": ((0, 1), 0, "1 if any axis is periodic: minimum-image separations and wrapping"),
     "neighbours": ((NEIGHBOUR_LISTS, CELL_WALK), NEIGHBOUR_LISTS,

@@ -37,7 +37,7 @@ TOL = {"f64": {"x": 1e-12, "v": 1e-12, "rho": 1e-12, "p": 1e-12, "a": 1e-11},
 # (2026-12-04; tiny_f64 took 160 s at the tiny scene's own 498 particles). The slow tier adds the 3D
 # DFSPH cases (one process, two peers, two walking peers), the obstacle and the carried density's own
 # case (walk_terms_f64 carries the density already).
-GROUPS = (["dfsph_peers_2d_f64", "open_f64", "tiny_f64", "terms_f64"],
+GROUPS = (["dfsph_peers_2d_f64", "open_f64", "tiny_f64", "terms_f64", "difference_f64"],
           ["tiny_f32", "periodic_f64", "peers_f64", "walk_terms_f64", "moving_walls_f64", "floating_f64", "rotating_f64",
            "damping_f64"])
 SLOW_GROUPS = (["dfsph_f64", "dfsph_peers_f64", "continuity_f64"], ["walk_dfsph_peers_f64", "obstacle_f64"])
@@ -104,11 +104,12 @@ def test_float32_steps_match_cpu(parity):
 
 
 @pytest.mark.parametrize("case", ["terms_f64", "periodic_f64", "walk_terms_f64", "moving_walls_f64", "floating_f64",
-                                  "rotating_f64", "damping_f64"])
+                                  "rotating_f64", "damping_f64", "difference_f64"])
 def test_options_match_cpu(parity, case):
     """Optional terms (XSPH, surface tension, vorticity confinement, shifting), leapfrog, Morris
     viscosity, the cubic spline kernel, periodic axes, the cell walk with the carried density, moving
-    and turning walls, a floating body (where it moved to: body_x; how it turned: body_R), a damping zone."""
+    and turning walls, a floating body (where it moved to: body_x; how it turned: body_R), a damping
+    zone, the difference form of the pressure gradient."""
     _check(parity[case], "f64")
     assert parity[case].get("body_x", 0.0) <= TOL["f64"]["x"]
     assert parity[case].get("body_R", 0.0) <= 1e-12

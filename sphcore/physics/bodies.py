@@ -1,4 +1,6 @@
-"""The fluid's force and torque on a floating body: the reaction to the wall terms of its wall.
+"""The fluid's force and torque on a floating body: the reaction to the wall terms of its wall
+(``sph.body_force = "reaction"``, the default; the other way, the surface integral of the fluid's
+traction, is physics/traction.py).
 
 A floating obstacle (sphcore/motion.py FloatingBody) is an analytic wall like any other: it pushes
 the particles near it with the wall pressure term and, with the Morris viscosity, drags them with

@@ -1,6 +1,7 @@
 """The momentum equation of one particle: a_i = pressure + viscosity + body force + wall pressure.
 
-The pair terms and their papers are in pressure.py (symmetric pressure gradient, Monaghan 1992),
+The pair terms and their papers are in pressure.py (the symmetric pressure gradient, Monaghan 1992,
+or the difference form with the symmetric one in the free surface's layer),
 viscosity.py (artificial, Muller, Morris), external.py (body forces) and walls.py (the analytic
 wall's pressure and no-slip drag); this file sums them over i's neighbours."""
 
@@ -9,18 +10,23 @@ import math
 from numba import njit
 
 from sphcore.physics.external import body_acceleration_at
-from sphcore.physics.kernels import dw_dr_over_r, lap_w_viscosity
+from sphcore.physics.kernels import dw_dr_over_r, lap_w_viscosity, w
 from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
-from sphcore.physics.pressure import pressure_pair
+from sphcore.physics.pressure import difference_pair, pressure_pair, symmetric_share
+from sphcore.physics.real import like
 from sphcore.physics.viscosity import artificial_pair, morris_pair, muller_pair
 from sphcore.physics.walls import near_wall, wall_terms, wall_viscosity
 
 
 @njit(cache=True, inline="always")
-def acceleration_row(kernel, viscosity, periodic, neighbours, prm, i, x, v, m, rho, p, nbr, counts, cells, cell_begin,
+def acceleration_row(kernel, viscosity, pressure_gradient, periodic, neighbours, prm, i, x, v, m, rho, p, nbr, counts, cells, cell_begin,
                      cell_end, wall_kind, wall_data, wall_tables, wall_motion, wall_near, fill, a):
     """a_i = pressure + viscosity + body force + wall pressure.   (pressure.py, viscosity.py,
-    external.py, walls.py; moving walls: motion.py)"""
+    external.py, walls.py; moving walls: motion.py)
+
+    With the difference form (pressure_gradient 1) the pass also sums the concentration C_i and the
+    symmetric form's zeroth-order part z_i = symmetric - difference, and adds z_i and the walls' uniform
+    push in the share symmetric_share(C_i): 1 in the free surface's layer, 0 in the bulk."""
     bx, by, bz = body_acceleration_at(prm, x[i, 0], x[i, 1], x[i, 2])
     ax = bx
     ay = by
@@ -28,6 +34,10 @@ def acceleration_row(kernel, viscosity, periodic, neighbours, prm, i, x, v, m, r
     rho_i = rho[i]
     p_i = p[i]
     p_rho2_i = p_i / (rho_i * rho_i)
+    zx = like(bx, 0.0)  # difference form: the symmetric form's zeroth-order part, sum (symmetric - difference)
+    zy = like(bx, 0.0)
+    zz = like(bx, 0.0)
+    c_i = m[i] / prm.rho0 * prm.w0  # difference form: the concentration C_i (its self term)
     home = walk_start(neighbours, x, i, cells)
     for span in range(spans(neighbours, cells)):
         k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
@@ -36,10 +46,19 @@ def acceleration_row(kernel, viscosity, periodic, neighbours, prm, i, x, v, m, r
             if not inside:
                 continue
             r_ij = math.sqrt(r2)
+            if pressure_gradient == 1:  # PressureGradient.DIFFERENCE
+                c_i += m[j] / prm.rho0 * w(kernel, r_ij, prm.H, prm.s_w)
             if r2 == 0.0:
                 continue  # coincident particles: no direction, no pressure force
             dw_over_r = dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
-            f = pressure_pair(m[j], p_rho2_i, p[j], rho[j], dw_over_r)
+            if pressure_gradient == 1:  # PressureGradient.DIFFERENCE
+                f = difference_pair(m[j], p_i, rho_i, p[j], rho[j], dw_over_r)
+                f0 = pressure_pair(m[j], p_rho2_i, p[j], rho[j], dw_over_r) - f
+                zx += f0 * dx
+                zy += f0 * dy
+                zz += f0 * dz
+            else:
+                f = pressure_pair(m[j], p_rho2_i, p[j], rho[j], dw_over_r)
             if viscosity == 1:  # Viscosity.ARTIFICIAL
                 vdotx = ((v[i, 0] - v[j, 0]) * dx + (v[i, 1] - v[j, 1]) * dy + (v[i, 2] - v[j, 2]) * dz)
                 f += artificial_pair(m[j], vdotx, r2, rho_i, rho[j], dw_over_r, prm.alpha, prm.c0, prm.h)
@@ -57,9 +76,21 @@ def acceleration_row(kernel, viscosity, periodic, neighbours, prm, i, x, v, m, r
                 ay += g * (v[i, 1] - v[j, 1])
                 az += g * (v[i, 2] - v[j, 2])
     near = near_wall(cells, wall_near, x, i)
+    p_push = p_i  # the pressure of the walls' uniform push (walls.py: -2 p G0 n)
+    if pressure_gradient == 1:  # PressureGradient.DIFFERENCE: the symmetric part in the surface layer's share
+        if near:  # the walls count as fluid: their share Phi(d_i) of a full lattice
+            zero = like(p_i, 0.0)
+            phi, _, _, _ = wall_terms(kernel, prm, False, wall_kind, wall_data, wall_tables, wall_tables, False,
+                                      x[i, 0], x[i, 1], x[i, 2], zero, rho_i, zero, zero, zero)
+            c_i += phi / prm.rho0
+        share = symmetric_share(c_i)
+        ax += share * zx
+        ay += share * zy
+        az += share * zz
+        p_push = share * p_i
     if near:  # elsewhere the walls' terms are zero
         _, wx, wy, wz = wall_terms(kernel, prm, True, wall_kind, wall_data, wall_tables, wall_motion, True,
-                                   x[i, 0], x[i, 1], x[i, 2], p_i, rho_i, bx, by, bz)
+                                   x[i, 0], x[i, 1], x[i, 2], p_push, rho_i, bx, by, bz)
         ax += fill[i] * wx
         ay += fill[i] * wy
         az += fill[i] * wz
