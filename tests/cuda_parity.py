@@ -207,11 +207,12 @@ CASES = {
     "floating_f64": lambda: steps_case(scene("floating_box_2d.toml", "particles.spacing=0.06",
                                              "forces.ramp_time=0.001", "obstacles[0].rotation=[0, 0, 10]",
                                              "obstacles[0].free_rotation=[false, false, true]"), "f64", 5),
-    # the difference form of the pressure gradient (physics/pressure.py): C_i, the zeroth-order part and
-    # the surface layer's share, about a floating cylinder (its force still the symmetric wall term's)
+    # the difference form of the pressure gradient (physics/pressure.py): C_i, the zeroth-order part, the
+    # surface layer's share and the gradient moment B_i (the walls' in it), about a floating cylinder
+    # whose force is the traction's (physics/traction.py: the moments of the state the device leaves)
     "difference_f64": lambda: steps_case(scene("settling_cylinder_2d.toml", "particles.spacing=2e-3",
                                                "sph.pressure_gradient='difference'", "terms.shifting=2.0",
-                                               "forces.ramp_time=0.001"), "f64", 3),
+                                               "sph.body_force='traction'", "forces.ramp_time=0.001"), "f64", 3),
     # a turning wall (motion.py): the inner cylinder's velocity Omega x (r - P) at each wall point
     "rotating_f64": lambda: steps_case(scene("circular_couette_2d.toml", "particles.spacing=2e-4"), "f64", 3),
     # inlets and outlets (open_boundary.py): a layer enters, rows leave, on the device as on the CPU

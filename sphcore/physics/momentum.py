@@ -12,10 +12,10 @@ from numba import njit
 from sphcore.physics.external import body_acceleration_at
 from sphcore.physics.kernels import dw_dr_over_r, lap_w_viscosity, w
 from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
-from sphcore.physics.pressure import difference_pair, pressure_pair, symmetric_share
+from sphcore.physics.pressure import corrected_gradient, difference_pair, pressure_pair, symmetric_share
 from sphcore.physics.real import like
 from sphcore.physics.viscosity import artificial_pair, morris_pair, muller_pair
-from sphcore.physics.walls import near_wall, wall_terms, wall_viscosity
+from sphcore.physics.walls import near_wall, wall_difference_terms, wall_terms, wall_viscosity
 
 
 @njit(cache=True, inline="always")
@@ -24,9 +24,11 @@ def acceleration_row(kernel, viscosity, pressure_gradient, periodic, neighbours,
     """a_i = pressure + viscosity + body force + wall pressure.   (pressure.py, viscosity.py,
     external.py, walls.py; moving walls: motion.py)
 
-    With the difference form (pressure_gradient 1) the pass also sums the concentration C_i and the
-    symmetric form's zeroth-order part z_i = symmetric - difference, and adds z_i and the walls' uniform
-    push in the share symmetric_share(C_i): 1 in the free surface's layer, 0 in the bulk."""
+    With the difference form (pressure_gradient 1) the pass also sums the concentration C_i, the
+    symmetric form's zeroth-order part z_i = symmetric - difference and the gradient moment B_i (the
+    walls' virtual lattice in it too), adds z_i and the walls' uniform push in the share
+    symmetric_share(C_i) (1 in the free surface's layer, 0 in the bulk), and the difference sum
+    corrected by B_i^-1 in the rest (pressure.py)."""
     bx, by, bz = body_acceleration_at(prm, x[i, 0], x[i, 1], x[i, 2])
     ax = bx
     ay = by
@@ -38,6 +40,15 @@ def acceleration_row(kernel, viscosity, pressure_gradient, periodic, neighbours,
     zy = like(bx, 0.0)
     zz = like(bx, 0.0)
     c_i = m[i] / prm.rho0 * prm.w0  # difference form: the concentration C_i (its self term)
+    qx = like(bx, 0.0)  # difference form: sum -1/rho_i V_j (p_j - p_i) grad W, and its moment B (pressure.py)
+    qy = like(bx, 0.0)
+    qz = like(bx, 0.0)
+    bxx = like(bx, 0.0)
+    bxy = like(bx, 0.0)
+    bxz = like(bx, 0.0)
+    byy = like(bx, 0.0)
+    byz = like(bx, 0.0)
+    bzz = like(bx, 0.0)
     home = walk_start(neighbours, x, i, cells)
     for span in range(spans(neighbours, cells)):
         k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
@@ -52,11 +63,22 @@ def acceleration_row(kernel, viscosity, pressure_gradient, periodic, neighbours,
                 continue  # coincident particles: no direction, no pressure force
             dw_over_r = dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
             if pressure_gradient == 1:  # PressureGradient.DIFFERENCE
-                f = difference_pair(m[j], p_i, rho_i, p[j], rho[j], dw_over_r)
-                f0 = pressure_pair(m[j], p_rho2_i, p[j], rho[j], dw_over_r) - f
+                fd = difference_pair(m[j], p_i, rho_i, p[j], rho[j], dw_over_r)
+                f0 = pressure_pair(m[j], p_rho2_i, p[j], rho[j], dw_over_r) - fd
                 zx += f0 * dx
                 zy += f0 * dy
                 zz += f0 * dz
+                qx += fd * dx
+                qy += fd * dy
+                qz += fd * dz
+                vg = -m[j] / rho[j] * dw_over_r  # B += V_j grad_i W (x) (x_j - x_i) = -V_j W'/r x_ij x_ij
+                bxx += vg * dx * dx
+                bxy += vg * dx * dy
+                bxz += vg * dx * dz
+                byy += vg * dy * dy
+                byz += vg * dy * dz
+                bzz += vg * dz * dz
+                f = like(fd, 0.0)
             else:
                 f = pressure_pair(m[j], p_rho2_i, p[j], rho[j], dw_over_r)
             if viscosity == 1:  # Viscosity.ARTIFICIAL
@@ -76,7 +98,6 @@ def acceleration_row(kernel, viscosity, pressure_gradient, periodic, neighbours,
                 ay += g * (v[i, 1] - v[j, 1])
                 az += g * (v[i, 2] - v[j, 2])
     near = near_wall(cells, wall_near, x, i)
-    p_push = p_i  # the pressure of the walls' uniform push (walls.py: -2 p G0 n)
     if pressure_gradient == 1:  # PressureGradient.DIFFERENCE: the symmetric part in the surface layer's share
         if near:  # the walls count as fluid: their share Phi(d_i) of a full lattice
             zero = like(p_i, 0.0)
@@ -87,10 +108,32 @@ def acceleration_row(kernel, viscosity, pressure_gradient, periodic, neighbours,
         ax += share * zx
         ay += share * zy
         az += share * zz
-        p_push = share * p_i
-    if near:  # elsewhere the walls' terms are zero
+        if near:  # the walls' uniform push in the layer's share; their hydrostatic part into q and B
+            zero = like(p_i, 0.0)
+            _, wx, wy, wz = wall_terms(kernel, prm, True, wall_kind, wall_data, wall_tables, wall_motion, False,
+                                       x[i, 0], x[i, 1], x[i, 2], share * p_i, rho_i, zero, zero, zero)
+            ax += fill[i] * wx
+            ay += fill[i] * wy
+            az += fill[i] * wz
+            hx, hy, hz, vxx, vxy, vxz, vyy, vyz, vzz = wall_difference_terms(
+                prm, wall_kind, wall_data, wall_tables, wall_motion, x[i, 0], x[i, 1], x[i, 2], rho_i, bx, by, bz)
+            qx += fill[i] * hx
+            qy += fill[i] * hy
+            qz += fill[i] * hz
+            bxx += fill[i] * vxx
+            bxy += fill[i] * vxy
+            bxz += fill[i] * vxz
+            byy += fill[i] * vyy
+            byz += fill[i] * vyz
+            bzz += fill[i] * vzz
+        cx, cy, cz = corrected_gradient(prm.dim3, qx, qy, qz, bxx, bxy, bxz, byy, byz, bzz)
+        keep = like(share, 1.0) - share  # the correction fades in the free surface's layer
+        ax += keep * cx + share * qx
+        ay += keep * cy + share * qy
+        az += keep * cz + share * qz
+    elif near:  # elsewhere the walls' terms are zero
         _, wx, wy, wz = wall_terms(kernel, prm, True, wall_kind, wall_data, wall_tables, wall_motion, True,
-                                   x[i, 0], x[i, 1], x[i, 2], p_push, rho_i, bx, by, bz)
+                                   x[i, 0], x[i, 1], x[i, 2], p_i, rho_i, bx, by, bz)
         ax += fill[i] * wx
         ay += fill[i] * wy
         az += fill[i] * wz

@@ -342,6 +342,43 @@ def wall_terms(kernel, prm, want_force, kinds, data, tables, motion, frame, x, y
     return drho, ax, ay, az
 
 
+@njit(cache=True, inline="always")
+def wall_difference_terms(prm, kinds, data, tables, motion, x, y, z, rho_i, bx, by, bz):
+    """The walls' share of the corrected difference form (physics/pressure.py): their hydrostatic
+    push q = (rho0 / rho_i)(b_n G1 n + G2 b_t) (the difference sum over the virtual lattice, b in each
+    wall's frame, b - a_w) and their gradient moment B_v = -(rho0 / rho_i)(G1 n n + G2 (I - n n)),
+    summed over the near walls without the corner correction (where virtual regions overlap both
+    count it twice, consistently: B^-1 q stays exact for a linear pressure). Returns
+    (qx, qy, qz, Bxx, Bxy, Bxz, Byy, Byz, Bzz)."""
+    H = prm.H
+    zero = like(H, 0.0)
+    qx = qy = qz = zero
+    bxx = bxy = bxz = byy = byz = bzz = zero
+    c = prm.rho0 / rho_i
+    for q in range(kinds.shape[0]):
+        d, nx, ny, nz = signed_distance(kinds[q], data[q], x, y, z)
+        if d >= H:
+            continue
+        awx, awy, awz = wall_point_acceleration(motion, q, x - d * nx, y - d * ny, z - d * nz)
+        ex = bx - awx
+        ey = by - awy
+        ez = bz - awz
+        g1 = c * table_lookup(tables[2], d, prm.wall_table_end)
+        g2 = c * table_lookup(tables[3], d, prm.wall_table_end)
+        b_n = ex * nx + ey * ny + ez * nz
+        qx += g1 * b_n * nx + g2 * (ex - b_n * nx)
+        qy += g1 * b_n * ny + g2 * (ey - b_n * ny)
+        qz += g1 * b_n * nz + g2 * (ez - b_n * nz)
+        dg = g2 - g1  # -(G1 n n + G2 (I - n n)) = -G2 I + (G2 - G1) n n
+        bxx += dg * nx * nx - g2
+        bxy += dg * nx * ny
+        bxz += dg * nx * nz
+        byy += dg * ny * ny - g2
+        byz += dg * ny * nz
+        bzz += dg * nz * nz - g2
+    return qx, qy, qz, bxx, bxy, bxz, byy, byz, bzz
+
+
 @njit(cache=True)
 def wall_viscosity(prm, kinds, data, tables, motion, x, y, z, rho_i):
     """(k, ux, uy, uz) such that the no-slip wall drag is a_i += k v_i - u: k = 2 mu / rho_i sum over
