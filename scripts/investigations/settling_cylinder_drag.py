@@ -1,22 +1,30 @@
-"""Why the settling cylinder is slow (docs/VALIDATION.md, "A cylinder settling between two walls"):
-the scene with --set overrides, its mean settling speed over t = 0.2-0.3 s in units of the terminal
-speed for a density difference of 1000 kg/m^3 and the drag F = mu U lambda of the given reference.
+"""Why the settling cylinder was slow, and what fixed it (docs/VALIDATION.md, "A cylinder settling
+between two walls"): the scene with --set overrides, its mean settling speed over t = 0.2-0.3 s in
+units of the terminal speed for a density difference of 1000 kg/m^3 and the drag F = mu U lambda of
+the given reference. The case now runs the corrected difference form with shifting and the
+traction's force (configs/settling_cylinder_2d.toml); the defaults are one override set away:
 
-    .venv/bin/python scripts/investigations/settling_cylinder_drag.py                           # the case: 0.677
-    .venv/bin/python scripts/investigations/settling_cylinder_drag.py --set sph.nu=2e-3         # 0.826
-    .venv/bin/python scripts/investigations/settling_cylinder_drag.py \\
+    .venv/bin/python scripts/investigations/settling_cylinder_drag.py                           # the case: 1.010
+    .venv/bin/python scripts/investigations/settling_cylinder_drag.py --held                    # force / buoyancy 1.012
+    .venv/bin/python scripts/investigations/settling_cylinder_drag.py --set obstacles[0].density=1000.0   # -0.004
+    .venv/bin/python scripts/investigations/settling_cylinder_drag.py \
+        --set "sph.pressure_gradient='symmetric'" --set "sph.body_force='reaction'" \
+        --set terms.shifting=0.0                                                                # the defaults: 0.677
+
+and, with those three overrides added (the defaults, 2026-12-05):
+
+        --set sph.nu=2e-3                                                                       # 0.826
         --set "forces.gravity=[0.0, -0.981]" --set obstacles[0].density=11000.0                 # 0.997
-    .venv/bin/python scripts/investigations/settling_cylinder_drag.py --lambda 29.1278 --area 2.5e-5 \\
+        --lambda 29.1278 --area 2.5e-5 \
         --set 'obstacles[0].shape="box"' --set "obstacles[0].size=[0.005, 0.005]"             # a square: 0.628
 
 (lambda 29.1278: the square's finite-element drag, a variant of faxen_fem_check.py with a square
 hole of side 2a). A weight less buoyancy other than 1000 kg/m^3 x g0 x area reads as a speed
 relative to that reference: a neutrally buoyant body's speed is in units of the case's U.
 ``--held`` holds the body (free across the channel only, where the flow pushes it neither way)
-and prints the fluid's vertical force on it over the last 0.1 s in units of the buoyancy rho0 g pi a^2:
-the pressure-force estimate of physics/bodies.py in still water (1.04 with the symmetric form; 0.54-0.61
-with the difference form of ``difference_form.patch``, run with ``--set sph.pressure_gradient='"difference"'
---set terms.shifting=2.0``). ``--profile OUT.npz`` also saves the particles' positions and velocities
+and prints the fluid's vertical force on it over the last 0.1 s in units of the buoyancy rho0 g pi a^2
+(the defaults' reaction: 1.04; the uncorrected difference form's reaction 0.54-0.61, its traction
+0.949; today 1.012). ``--profile OUT.npz`` also saves the particles' positions and velocities
 over t = 0.25-0.3 s in units of the half-width and of the body's speed, for a comparison with the
 finite elements.
 """
