@@ -114,6 +114,9 @@ def test_a_sheared_layer_pulls_the_face_it_slides_on_by_mu_gamma():
     assert fitted.sum() > 15 and np.all(top[phi >= traction.DRY_FRACTION])
     assert F[0] == pytest.approx(mu * gamma * area[fitted].sum(), rel=1e-6)
     assert abs(F[1]) < 1e-9 * mu * gamma * 0.2
+    # and turns the box clockwise about its centre: T_z = (r x t)_z = -0.05 F_x on the top face
+    _, T, _ = traction.traction_from_moments(sums, pts, nrm, area, np.zeros(3), 2, H, P_SCALE, V_SCALE, mu)
+    assert T[2] == pytest.approx(-0.05 * F[0], rel=1e-9)
 
 
 @pytest.mark.fast
@@ -130,7 +133,8 @@ def test_the_moments_are_the_same_integers_however_the_rows_are_split():
 
 
 def _square_traction():
-    return load_scene(SQUARE, SQUARE_COARSE + ["sph.body_force='traction'"])
+    return load_scene(SQUARE, SQUARE_COARSE + ["sph.body_force='traction'", "sph.pressure_gradient='difference'",
+                                               "terms.shifting=2.0"])
 
 
 def test_a_turning_body_under_traction_gives_the_same_bits_on_two_peers_and_after_a_resume(tmp_path):
@@ -149,12 +153,14 @@ def test_a_turning_body_under_traction_gives_the_same_bits_on_two_peers_and_afte
 
 
 @pytest.mark.fast
-def test_the_scene_refuses_the_difference_form_with_the_reaction_and_traction_with_wall_friction():
+def test_the_scene_refuses_the_difference_form_with_the_reaction_and_traction_without_it_or_with_wall_friction():
     scene = CONFIGS / "settling_cylinder_closed_2d.toml"
     with pytest.raises(SceneError, match="needs sph.body_force = 'traction'"):
         load_scene(scene, ["sph.pressure_gradient='difference'", "terms.shifting=2.0", "sph.body_force='reaction'"])
     with pytest.raises(SceneError, match=r"terms.wall_friction = 1e-06"):
-        load_scene(scene, ["sph.body_force='traction'", "terms.wall_friction=1e-6"])
+        load_scene(scene, ["terms.wall_friction=1e-6"])
+    with pytest.raises(SceneError, match="needs sph.pressure_gradient = 'difference'"):
+        load_scene(scene, ["sph.pressure_gradient='symmetric'"])
     load_scene(scene)  # the case itself: the difference form, shifting and the traction
 
 
