@@ -344,6 +344,11 @@ class FloatingBody(_NoRotation):
     torque: np.ndarray = field(default_factory=lambda: np.zeros(3))  # ... and torque about its centre (N m; N)
     surface: tuple = ()  # sph.body_force = "traction": (points, normals, areas) as placed (physics/traction.py)
 
+    @property
+    def surface_reach(self) -> float:
+        """The farthest surface point from the centre (m): rows beyond it + H add nothing to the traction."""
+        return float(np.sqrt((self.surface[0] ** 2).sum(axis=1)).max())
+
     STATE = ("x", "v", "a", "R", "w", "alpha", "force", "torque")  # where it is and how it moves (solver._same)
 
     @property

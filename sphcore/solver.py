@@ -373,8 +373,8 @@ class Simulation:
             s = self.state
             n = s.n_owned
             H = float(self.model.H)
-            reach = float(np.sqrt((rel_points * rel_points).sum(axis=1)).max()) + H
-            d = s.x[:n].astype(np.float64) - centre
+            reach = body.surface_reach + 1.001 * H  # a margin over the positions' rounding (float32 runs)
+            d = s.x[:n] - centre.astype(s.x.dtype)
             rows = np.nonzero((d * d).sum(axis=1) < reach * reach)[0].astype(np.int64)
             scales = self._traction_scales()
             moments = np.zeros((points.shape[0], traction.MOMENTS), dtype=np.int64)
