@@ -23,6 +23,7 @@ from nodes.endpoint import PeerTimeout
 from sphcore import checkpoint
 from sphcore.decomposition import Decomposition, choose_dims
 from sphcore.halo import MAX_CONTROL_BYTES, Reject, decode_commands, encode_commands, expect_arrays, has_repeats
+from sphcore.physics.traction import MOMENTS
 from sphcore.solver import Simulation
 
 log = logging.getLogger("sph.peer")
@@ -313,11 +314,14 @@ def message_limit(sim: Simulation):
     """(phase, step) -> the most bytes a genuine message of this run can have: every particle of the
     scene with all it carries (a rebalance may move them all to one peer), the balance histograms,
     and room for the rest; the final gather also carries per-step statistics, which grow with the
-    step. Anything longer is dropped unread (nodes/zenoh_transport.py)."""
+    step; a floating body's traction sums carry MOMENTS int64 for each point of its surface. Anything
+    longer is dropped unread (nodes/zenoh_transport.py)."""
     s = sim.state
     per_row = s.per_particle().values()  # every field and every carried extra array
     row = sum(a.itemsize * int(np.prod(a.shape[1:])) for a in per_row)
-    base = HEADROOM + sim.n_particles * row + 3 * 8 * int(np.sum(sim.grid.ncell))
+    surfaces = sum(len(body.surface[0]) for body in sim.model.walls.bodies if body.surface)
+    base = (HEADROOM + sim.n_particles * row + 3 * 8 * int(np.sum(sim.grid.ncell))
+            + 8 * MOMENTS * surfaces)
 
     def limit(phase: str, step: int) -> int:
         return base + (STATS_BYTES_PER_STEP * max(step, 0) if phase == "final" else 0)

@@ -1071,6 +1071,18 @@ def _check_combinations(s: Scene, files: bool = True, backend: str = "cpu") -> S
         raise SceneError(f"sph.body_force = 'traction' does not include the walls' turbulent friction "
                          f"(terms.wall_friction = {s.terms.wall_friction!r}) in a floating body's force; use "
                          f"sph.body_force = 'reaction' or terms.wall_friction = 0")
+    if s.sph.body_force == "traction" and floating:
+        from sphcore.physics.traction import MAX_SURFACE_POINTS, surface_point_count
+        for i in floating:
+            ob = s.obstacles[i]
+            points = surface_point_count(ob.shape, s.dim, ob.radius, ob.size, s.particles.spacing)
+            if points > MAX_SURFACE_POINTS:
+                what = (f"obstacles[{i}].radius = {ob.radius!r}" if ob.shape == "sphere" else
+                        f"obstacles[{i}].size = {list(ob.size[: s.dim])!r}")
+                raise SceneError(f"sph.body_force = 'traction': {what} at particles.spacing = "
+                                 f"{s.particles.spacing!r} needs about {points:,} points on the body's surface (two "
+                                 f"per spacing), at most {MAX_SURFACE_POINTS:,}; use a coarser spacing or a smaller "
+                                 f"body, or sph.body_force = 'reaction' with sph.pressure_gradient = 'symmetric'")
     if s.sph.pressure_gradient == "difference" and s.terms.shifting <= 0.0:
         # nothing else holds the particles apart: they pair and clump (a dam break reached the speed of sound)
         raise SceneError("sph.pressure_gradient = 'difference' needs terms.shifting > 0 (typically 1-2): a uniform "

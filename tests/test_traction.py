@@ -165,6 +165,38 @@ def test_the_scene_refuses_the_difference_form_with_the_reaction_and_traction_wi
 
 
 @pytest.mark.fast
+def test_a_body_too_large_for_its_spacing_is_refused_before_its_points_are_made():
+    """The points' count is known without placing them (exactly for a circle and a box, within a few
+    points for a sphere), and a scene whose body would need more than MAX_SURFACE_POINTS is refused:
+    a sphere 5,000 spacings wide took minutes in the Gauss-Legendre nodes before any step."""
+    for shape, dim, radius, size, spacing in [("sphere", 2, 0.1, (0, 0, 0), 0.003), ("box", 2, 0.0, (0.2, 0.1), 0.007),
+                                              ("box", 3, 0.0, (0.2, 0.1, 0.3), 0.011)]:
+        placed = len(traction.surface_points(shape, dim, radius, size, np.eye(3), spacing)[0])
+        assert traction.surface_point_count(shape, dim, radius, size, spacing) == placed
+    for radius, spacing in [(0.1, 0.01), (0.3, 0.007), (1.0, 0.013)]:
+        placed = len(traction.surface_points("sphere", 3, radius, (0, 0, 0), np.eye(3), spacing)[0])
+        assert abs(traction.surface_point_count("sphere", 3, radius, (0, 0, 0), spacing) - placed) <= 1e-4 * placed + 4
+    scene = CONFIGS / "settling_cylinder_2d.toml"
+    with pytest.raises(SceneError, match=r"obstacles\[0\].radius = 0.0025 at particles.spacing = 5e-08 needs about "
+                                         r"628,319 points"):
+        load_scene(scene, ["particles.spacing=5e-8"])
+
+
+def test_a_peer_accepts_traction_sums_as_long_as_the_bodys_points_need():
+    """Each peer sends the others MOMENTS int64 a surface point every step: the size a peer accepts
+    (nodes/peer.message_limit) grows by exactly that, so a large body's sums are not dropped unread."""
+    from nodes.peer import message_limit
+    from sphcore.solver import Simulation
+    scene = CONFIGS / "settling_cylinder_2d.toml"
+    traction_sim = Simulation(load_scene(scene))
+    reaction_sim = Simulation(load_scene(scene, ["sph.pressure_gradient='symmetric'", "sph.body_force='reaction'"]))
+    points = len(traction_sim.model.walls.bodies[0].surface[0])
+    assert traction_sim.n_particles == reaction_sim.n_particles and points > 0
+    grown = message_limit(traction_sim)("body0", 10) - message_limit(reaction_sim)("body0", 10)
+    assert grown == 8 * traction.MOMENTS * points
+
+
+@pytest.mark.fast
 def test_in_3d_a_linear_pressure_gives_a_spheres_buoyancy_and_a_rigid_rotation_no_traction():
     # A sphere of radius 5 spacings in a jittered 3D lattice under p = p0 + G . x: the force is
     # -G 4/3 pi a^3; the fluid turning rigidly with the sphere (no strain) exerts no viscous force

@@ -199,6 +199,30 @@ def traction_from_moments(sums, points, normals, areas, centre, dim, H, p_scale,
     return F, T, wet
 
 
+# The most points a body's surface may take: every peer sends every other its moments of all of
+# them each step (MOMENTS int64 a point: 46 MB at this limit), and fits each point on the host. A
+# sphere of 140 spacings' radius in 3D reaches it; the scene refuses a larger body (scene.py).
+MAX_SURFACE_POINTS = 250_000
+
+
+def surface_point_count(shape: str, dim: int, radius: float, size, spacing: float) -> int:
+    """About how many points ``surface_points`` puts on the body, without placing them (a scene with
+    a huge body is refused before its points are made): exactly for a circle and a box; for a
+    sphere within a few points (its rings' radii from the Gauss-Legendre nodes' asymptotic form,
+    cos(pi (k + 3/4) / (rings + 1/2)), where the points use the nodes themselves)."""
+    h = 0.5 * spacing
+    if shape == "sphere":
+        if dim == 2:
+            return max(8, math.ceil(2.0 * math.pi * radius / h))
+        rings = max(4, math.ceil(math.pi * radius / h))
+        z = np.cos(math.pi * (np.arange(rings) + 0.75) / (rings + 0.5))
+        per_ring = np.ceil(2.0 * math.pi * radius * np.sqrt(np.maximum(1.0 - z * z, 0.0)) / h)
+        return int(np.maximum(per_ring, 4).sum())
+    half = 0.5 * np.asarray(size[:3], dtype=np.float64)
+    return sum(2 * math.prod(max(1, math.ceil(2.0 * half[a] / h)) for a in range(dim) if a != axis)
+               for axis in range(dim))
+
+
 def surface_points(shape: str, dim: int, radius: float, size, R: np.ndarray, spacing: float):
     """(points, normals, areas): quadrature points of a floating body's surface relative to its
     centre, as the scene places it (turned by R), about two per particle spacing along the surface;
