@@ -48,8 +48,24 @@ def wrap_generator(cls, name):
     setattr(cls, name, timed)
 
 
+def part_of(rows, n_owned):
+    """' (interior rows)' or ' (boundary rows)' for a peer's pass over part of its rows (the boundary
+    rows are about 1 in 8 here), '' for a pass over all."""
+    if rows is None or rows.shape[0] == 0:
+        return ""
+    return " (interior rows)" if rows.shape[0] > n_owned // 2 else " (boundary rows)"
+
+
 def instrument():
-    for name in ("build_neighbours", "sort", "sort_ghosts"):
+    build = grid_mod.Grid.build_neighbours
+
+    def timed_build(self, x, n_query, rows=None):
+        t0 = time.perf_counter()
+        out = build(self, x, n_query, rows)
+        T["build_neighbours" + part_of(rows, n_query)] += time.perf_counter() - t0
+        return out
+    grid_mod.Grid.build_neighbours = timed_build
+    for name in ("sort", "sort_ghosts"):
         wrap(grid_mod.Grid, name)
     for name in ("rebuild", "append_ghosts", "zone_rows", "split_rows", "rows_of", "set_rows"):
         wrap(cpu.CpuStages, name)
@@ -61,10 +77,7 @@ def instrument():
     def timed_launch(self, stage, choices, n, rows, arguments, wait):
         t0 = time.perf_counter()
         out = launch(self, stage, choices, n, rows, arguments, wait)
-        # a peer runs a pass over its interior rows, then over its boundary rows (about 1 in 8 here)
-        part = "" if rows.shape[0] == 0 else (
-            " (interior rows)" if rows.shape[0] > self.sim.state.n_owned // 2 else " (boundary rows)")
-        T["stage " + stage.name + part] += time.perf_counter() - t0
+        T["stage " + stage.name + part_of(rows, self.sim.state.n_owned)] += time.perf_counter() - t0
         return out
     cpu.CpuStages.launch = timed_launch
 
