@@ -62,6 +62,7 @@ import numpy as np
 from sphcore.choices import KERNELS, Kernel
 from sphcore.initial import check_probes_inside, outside_domain
 from sphcore.physics.kernels import kernel_constants
+from sphcore.scene import pressure_scale
 
 DRY_FRACTION = 0.05          # pressure: phi below this reads 0 Pa (dry)
 SURFACE_FRACTION = 0.5       # height: the surface is the highest point with phi >= this
@@ -129,12 +130,8 @@ class Probes:
                            for p in self.items]
         self.lines = [self._line(scene, model.walls, p.at) if p.kind == "height" else None for p in self.items]
         self.sizes = [2 if p.kind == "pressure" else len(line) for p, line in zip(self.items, self.lines)]
-        f = scene.forces
-        L = float(np.linalg.norm(grid.ncell * grid.cell.astype(np.float64)))
-        rho0 = scene.fluid.rest_density
-        scale = max(rho0 * scene.sph.sound_speed ** 2, rho0 * float(np.linalg.norm(np.add(f.gravity, f.external))) * L,
-                    1.0)
-        self.pressure_quantum = scale * 2.0 ** -PRESSURE_QUANTUM_BITS
+        L = float(np.linalg.norm(grid.ncell * grid.cell.astype(np.float64)))  # the grid's diagonal
+        self.pressure_quantum = pressure_scale(scene, L) * 2.0 ** -PRESSURE_QUANTUM_BITS
         self.cap = 2.0 ** 62 / max(sim.n_particles, 1)  # a blown-up run saturates instead of overflowing
 
     def _line(self, scene, walls, at) -> np.ndarray:

@@ -1374,6 +1374,15 @@ def grid_reach(s: Scene) -> int:
     return 2 if s.run.neighbours == "lists" else 1
 
 
+def pressure_scale(s: Scene, length: float) -> float:
+    """Pa: the largest pressure the scene can hold, the scale of the integer quanta its exact sums
+    count in (probes.py, the traction's moments): rho0 c0^2 (the equation of state's stiffness),
+    or rho0 |g| L for a column ``length`` deep if that is more, and never under 1 Pa."""
+    rho0, c0 = s.fluid.rest_density, s.sph.sound_speed
+    g = float(np.linalg.norm(np.add(s.forces.gravity, s.forces.external)))
+    return max(rho0 * c0 * c0, rho0 * g * length, 1.0)
+
+
 def stores_pair_gradients(s: Scene, backend: str = "cpu") -> bool:
     """Whether a run stores grad W_ij per list entry (model.pair_gradients): DFSPH, lists, the CPU."""
     return s.sph.solver == "dfsph" and s.run.neighbours == "lists" and backend == "cpu"

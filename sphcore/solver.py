@@ -23,7 +23,7 @@ from sphcore.motion import FloatingBody
 from sphcore.open_boundary import OpenBoundaries
 from sphcore.physics import traction
 from sphcore.probes import Probes
-from sphcore.scene import Scene
+from sphcore.scene import Scene, pressure_scale
 from sphcore.solvers import SOLVERS
 from sphcore.state import ParticleState
 from sphcore.timers import StageTimers
@@ -391,12 +391,10 @@ class Simulation:
         """(p_scale, v_scale, mu) of the traction's moments: rho0 c0^2 (or rho0 |g| L), c0, and the
         laminar viscosity's mu (0 with artificial viscosity or none)."""
         sc = self.scene
-        rho0, c0 = sc.fluid.rest_density, sc.sph.sound_speed
-        g = np.add(sc.forces.gravity, sc.forces.external)
-        L = float(np.linalg.norm(self.model.walls.hi - self.model.walls.lo))
-        p_scale = max(rho0 * c0 * c0, rho0 * float(np.linalg.norm(g)) * L, 1.0)
+        L = float(np.linalg.norm(self.model.walls.hi - self.model.walls.lo))  # the domain's diagonal
         laminar = sc.sph.viscosity in ("morris", "muller")
-        return p_scale, max(c0, 1.0), (rho0 * sc.sph.nu if laminar else 0.0)
+        return (pressure_scale(sc, L), max(sc.sph.sound_speed, 1.0),
+                (sc.fluid.rest_density * sc.sph.nu if laminar else 0.0))
 
     def _check_body(self, body):
         """A floating body whose reference point leaves the domain's box (body-wall contact is not
