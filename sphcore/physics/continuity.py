@@ -47,7 +47,7 @@ import math
 
 from numba import njit
 from sphcore.physics.eos import sound_speed_sq
-from sphcore.physics.kernels import dw_dr_over_r
+from sphcore.physics.kernels import pair_dw_dr_over_r
 from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
 from sphcore.physics.real import like
 
@@ -83,10 +83,7 @@ def diffusion_row(kernel, eos, periodic, neighbours, prm, i, x, m, rho, nbr, cou
             j, dx, dy, dz, r2, inside = candidate(neighbours, periodic, x, nbr, i, k, prm, cells)
             if not inside:
                 continue
-            r_ij = math.sqrt(r2)
-            if r2 == 0.0:
-                continue
-            g = dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
+            g = pair_dw_dr_over_r(kernel, r2, math.sqrt(r2), prm.H, prm.s_g)  # 0 for coincident particles
             # (dx, dy, dz) = x_i - x_j; the pair's mean density sets the hydrostatic step (symmetric in i, j)
             rho_m = like(rho_i, 0.5) * (rho_i + rho[j])
             hydro = hydrostatic_difference(rho_m, sound_speed_sq(eos, rho_m, prm.rho0, prm.c0),

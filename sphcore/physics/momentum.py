@@ -10,7 +10,7 @@ import math
 from numba import njit
 
 from sphcore.physics.external import body_acceleration_at
-from sphcore.physics.kernels import dw_dr_over_r, lap_w_viscosity, w
+from sphcore.physics.kernels import lap_w_viscosity, pair_dw_dr_over_r, w
 from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
 from sphcore.physics.pressure import corrected_gradient, difference_pair, pressure_pair, symmetric_share
 from sphcore.physics.real import like
@@ -59,9 +59,9 @@ def acceleration_row(kernel, viscosity, pressure_gradient, periodic, neighbours,
             r_ij = math.sqrt(r2)
             if pressure_gradient == 1:  # PressureGradient.DIFFERENCE
                 c_i += m[j] / prm.rho0 * w(kernel, r_ij, prm.H, prm.s_w)
-            if r2 == 0.0:
-                continue  # coincident particles: no direction, no pressure force
-            dw_over_r = dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
+            # coincident particles add nothing (no direction): every term below is proportional to
+            # dw_over_r, which is 0 for them (kernels.pair_dw_dr_over_r: a select, not a branch)
+            dw_over_r = pair_dw_dr_over_r(kernel, r2, r_ij, prm.H, prm.s_g)
             if pressure_gradient == 1:  # PressureGradient.DIFFERENCE
                 fd = difference_pair(m[j], p_i, rho_i, p[j], rho[j], dw_over_r)
                 f0 = pressure_pair(m[j], p_rho2_i, p[j], rho[j], dw_over_r) - fd
@@ -89,6 +89,7 @@ def acceleration_row(kernel, viscosity, pressure_gradient, periodic, neighbours,
             az += f * dz
             if viscosity == 2:  # Viscosity.MULLER: along v_j - v_i
                 g = muller_pair(m[j], rho_i, rho[j], lap_w_viscosity(r_ij, prm.H, prm.s_l), prm.mu)
+                g = g if r2 > like(r2, 0.0) else like(g, 0.0)  # the Laplacian is not proportional to dw_over_r
                 ax += g * (v[j, 0] - v[i, 0])
                 ay += g * (v[j, 1] - v[i, 1])
                 az += g * (v[j, 2] - v[i, 2])

@@ -31,7 +31,7 @@ import math
 from numba import njit
 
 from sphcore.grid import CELL_WALK, cell_span, home_cell, minimum_image
-from sphcore.physics.kernels import dw_dr_over_r
+from sphcore.physics.kernels import pair_dw_dr_over_r
 from sphcore.physics.real import like
 
 
@@ -93,10 +93,7 @@ def candidate(neighbours, periodic, x, nbr, i, k, prm, cells):
 def computed_gradient(kernel, dx, dy, dz, r2, prm):
     """grad W_ij = (dW/dr / r) x_ij for a separation x_ij = (dx, dy, dz) with |x_ij|^2 = r2 inside the
     support; 0 for coincident particles (r = 0: no direction)."""
-    if r2 == 0.0:
-        z = like(dx, 0.0)
-        return z, z, z
-    g = dw_dr_over_r(kernel, math.sqrt(r2), prm.H, prm.s_g)
+    g = pair_dw_dr_over_r(kernel, r2, math.sqrt(r2), prm.H, prm.s_g)
     return g * dx, g * dy, g * dz
 
 

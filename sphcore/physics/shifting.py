@@ -31,7 +31,7 @@ such layer; there a low C marks a void, and the shift draws the particles around
 """
 from numba import njit
 import math
-from sphcore.physics.kernels import dw_dr_over_r, w
+from sphcore.physics.kernels import pair_dw_dr_over_r, w
 from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
 from sphcore.physics.walls import near_wall, wall_density_gradient, wall_terms
 from sphcore.physics.real import like
@@ -64,9 +64,7 @@ def shifting_row(kernel, periodic, neighbours, add, prm, i, x, v, m, rho, nbr, c
                 continue
             r_ij = math.sqrt(r2)
             c += m[j] / prm.rho0 * w(kernel, r_ij, prm.H, prm.s_w)
-            if r2 == 0.0:
-                continue
-            f = concentration_gradient_pair(m[j], prm.rho0, dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g))
+            f = concentration_gradient_pair(m[j], prm.rho0, pair_dw_dr_over_r(kernel, r2, r_ij, prm.H, prm.s_g))
             gx += f * dx
             gy += f * dy
             gz += f * dz

@@ -12,7 +12,7 @@ gradient kernel; the Laplacian uses the viscosity-kernel Laplacian, as Müller d
 """
 from numba import njit
 import math
-from sphcore.physics.kernels import dw_dr_over_r, lap_w_viscosity
+from sphcore.physics.kernels import lap_w_viscosity, pair_dw_dr_over_r
 from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
 from sphcore.physics.real import like
 
@@ -52,13 +52,12 @@ def surface_tension_row(kernel, periodic, neighbours, prm, i, x, m, rho, nbr, co
             if not inside:
                 continue
             r_ij = math.sqrt(r2)
-            if r2 == 0.0:
-                continue
-            f = colour_gradient_pair(m[j], rho[j], dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g))
+            f = colour_gradient_pair(m[j], rho[j], pair_dw_dr_over_r(kernel, r2, r_ij, prm.H, prm.s_g))
             gx += f * dx
             gy += f * dy
             gz += f * dz
-            lap_c += colour_laplacian_pair(m[j], rho[j], lap_w_viscosity(r_ij, prm.H, prm.s_l))
+            lap = colour_laplacian_pair(m[j], rho[j], lap_w_viscosity(r_ij, prm.H, prm.s_l))
+            lap_c += lap if r2 > like(r2, 0.0) else like(lap, 0.0)  # coincident particles add nothing
     norm = math.sqrt(gx * gx + gy * gy + gz * gz)
     s = surface_tension_factor(prm.sigma, lap_c, norm, rho[i], prm.st_threshold)
     a[i, 0] += s * gx

@@ -11,7 +11,7 @@ and the cross products reduce accordingly (vectors are always stored with 3 comp
 """
 from numba import njit
 import math
-from sphcore.physics.kernels import dw_dr_over_r
+from sphcore.physics.kernels import pair_dw_dr_over_r
 from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
 from sphcore.physics.real import like
 
@@ -41,10 +41,7 @@ def vorticity_row(kernel, periodic, neighbours, prm, i, x, v, m, rho, nbr, count
             j, dx, dy, dz, r2, inside = candidate(neighbours, periodic, x, nbr, i, k, prm, cells)
             if not inside:
                 continue
-            r_ij = math.sqrt(r2)
-            if r2 == 0.0:
-                continue
-            g = dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
+            g = pair_dw_dr_over_r(kernel, r2, math.sqrt(r2), prm.H, prm.s_g)  # 0 for coincident particles
             cx, cy, cz = curl_pair(m[j] / rho[j], v[j, 0] - v[i, 0], v[j, 1] - v[i, 1], v[j, 2] - v[i, 2],
                                    g * dx, g * dy, g * dz)
             ox += cx
@@ -69,11 +66,8 @@ def confinement_row(kernel, periodic, neighbours, prm, i, x, m, rho, omega, nbr,
             j, dx, dy, dz, r2, inside = candidate(neighbours, periodic, x, nbr, i, k, prm, cells)
             if not inside:
                 continue
-            r_ij = math.sqrt(r2)
-            if r2 == 0.0:
-                continue
             wj = math.sqrt(omega[j, 0] ** 2 + omega[j, 1] ** 2 + omega[j, 2] ** 2)
-            g = m[j] / rho[j] * wj * dw_dr_over_r(kernel, r_ij, prm.H, prm.s_g)
+            g = m[j] / rho[j] * wj * pair_dw_dr_over_r(kernel, r2, math.sqrt(r2), prm.H, prm.s_g)
             ex += g * dx
             ey += g * dy
             ez += g * dz
