@@ -16,7 +16,9 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import os
+import re
 import sys
 from pathlib import Path
 
@@ -41,6 +43,16 @@ def _positive_int(text: str) -> int:
     return value
 
 
+MAX_STEPS = 10**9  # as the scene's time.steps: a longer run is a typo, not a plan
+
+
+def _steps(text: str) -> int:
+    value = _positive_int(text)
+    if value > MAX_STEPS:
+        raise argparse.ArgumentTypeError(f"{text!r}: at most {MAX_STEPS:,} steps")
+    return value
+
+
 def _positive_float(text: str) -> float:
     try:
         value = float(text)
@@ -48,6 +60,8 @@ def _positive_float(text: str) -> float:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
     if not value > 0:
         raise argparse.ArgumentTypeError(f"{text!r} must be > 0")
+    if math.isinf(value):
+        raise argparse.ArgumentTypeError(f"{text!r} must be finite")
     return value
 
 
@@ -143,7 +157,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("config", type=Path, nargs="?", default=None,
                      help="scene file (TOML), e.g. configs/dam_break.toml (not with --resume)")
     length = run.add_mutually_exclusive_group()
-    length.add_argument("--steps", type=_positive_int, default=None,
+    length.add_argument("--steps", type=_steps, default=None,
                         help="number of steps (default: the scene's time.steps)")
     length.add_argument("--until", type=_positive_float, default=None, metavar="T",
                         help="run until simulated time T (s)")
@@ -237,7 +251,7 @@ def build_parser() -> argparse.ArgumentParser:
                       help="floating point precision (default: the scene's run.precision; auto = f64 on the "
                           "CPU, f32 with --backend cuda)")
     plen = peer.add_mutually_exclusive_group()
-    plen.add_argument("--steps", type=_positive_int, default=None, help="number of steps (default: time.steps)")
+    plen.add_argument("--steps", type=_steps, default=None, help="number of steps (default: time.steps)")
     plen.add_argument("--until", type=_positive_float, default=None, metavar="T", help="run until simulated time T")
     peer.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                       help="override a scene key (repeatable; the same on every peer)")
@@ -424,7 +438,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help="floating point precisions to time (default: f32 f64)")
     bench.add_argument("--threads", type=_positive_int, nargs="+", default=[1, 2],
                        help="numba thread counts to time (default: 1 2)")
-    bench.add_argument("--steps", type=_positive_int, default=100, help="timed steps per case (default: 100)")
+    bench.add_argument("--steps", type=_steps, default=100, help="timed steps per case (default: 100)")
     bench.add_argument("--neighbours", nargs="+", choices=("lists", "walk"), default=["lists"],
                        help="neighbour search of each case: lists, walk (the 27-cell walk, no lists), or both "
                             "side by side with their ratio (default: lists)")
@@ -637,17 +651,40 @@ def _output_folder(args, scene) -> Path:
     """The output folder, checked without creating anything: it is a folder (or will be one) and the
     nearest existing folder above it is writable. The run creates it just before its first step."""
     import os
-    out = args.out if args.out is not None else Path("runs") / scene.scene.name
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"--out {str(out)!r}: exists and is not a folder")
-    above = out.absolute()
-    while not above.exists():
-        above = above.parent
+    if args.out is None:
+        out = Path("runs") / _folder_name(scene.scene.name)
+    elif str(args.out) in ("", "."):  # Path("") is "."; neither names a run's own folder
+        raise UsageError(f"--out {str(args.out)!r}: name a folder for the run's outputs, e.g. --out runs/NAME")
+    else:
+        out = args.out
+    try:
+        if out.exists() and not out.is_dir():
+            raise UsageError(f"--out {str(out)!r}: exists and is not a folder")
+        above = out.absolute()
+        while not above.exists():
+            above = above.parent
+    except (OSError, ValueError) as e:  # a name too long, a NUL byte: the OS's own refusal, on one line
+        raise UsageError(f"--out {_short_text(str(out))}: not a usable path ({getattr(e, 'strerror', None) or e})") from None
     if not above.is_dir():
         raise UsageError(f"--out {str(out)!r}: {above} is a file, so no folder can be made under it")
     if not os.access(above, os.W_OK | os.X_OK):
         raise UsageError(f"--out {str(out)!r}: {above} is not writable by this user")
     return out
+
+
+def _short_text(text: str, most: int = 80) -> str:
+    return repr(text) if len(text) <= most else repr(text[:most]) + f"... ({len(text)} characters)"
+
+
+def _folder_name(name: str) -> str:
+    """scene.name as the default output folder under runs/: one plain path component (letters, digits,
+    spaces, . _ - +), not '.' or '..', at most 100 characters; else UsageError asking for --out (a
+    scene file's name must not choose where a run writes: '../x' or '/etc' would leave runs/)."""
+    plain = re.fullmatch(r"[\w .+-]{1,100}", name) and name.strip(" .") and not name.startswith("-")
+    if not plain:
+        raise UsageError(f"scene.name = {_short_text(name)}: not a plain folder name for runs/NAME (letters, digits, "
+                         f"spaces, . _ - +; at most 100 characters; not '.' or '..'); give --out FOLDER")
+    return name
 
 
 def _check_bench(args):

@@ -14,6 +14,7 @@ import math
 import os
 import re
 import tomllib
+import unicodedata
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -99,7 +100,8 @@ class Block:
 
 @dataclass(frozen=True)
 class Fluid:
-    rest_density: float = spec(1000.0, "rest density rho0 (kg/m^3)", range=(0.0, math.inf), min_exclusive=True,
+    rest_density: float = spec(1000.0, "rest density rho0 (kg/m^3; 1e-3 to 1e6: rho^2 and p / rho^2 stay within "
+                               "float32's range)", range=(1e-3, 1e6),
                                control=LIVE)
     initial_flow: str = spec("none", "analytic initial velocity field added to the blocks' velocity; straining: "
                              "u = A (x - c), v = -A (y - c) (the oscillating drop)",
@@ -1010,6 +1012,11 @@ def _check_combinations(s: Scene, files: bool = True, backend: str = "cpu") -> S
     lo, hi = s.render.range
     if (lo, hi) != (0.0, 0.0) and not hi > lo:
         raise SceneError(f"render.range = {[lo, hi]!r}: high must exceed low (or [0, 0] for the default)")
+    name = s.scene.name
+    if len(name) > 200 or any(unicodedata.category(c)[0] == "C" for c in name):
+        # the name is printed in logs and summaries: a newline in it could forge a line of them
+        raise SceneError(f"scene.name = {_short(name)}: at most 200 characters, none of them control or format "
+                         "characters (newlines, tabs, direction overrides)")
     if not s.fluid.blocks:
         raise SceneError("fluid.blocks: a scene needs at least one [[fluid.blocks]] table")
     for i, b in enumerate(s.fluid.blocks):
@@ -1028,6 +1035,9 @@ def _check_combinations(s: Scene, files: bool = True, backend: str = "cpu") -> S
             [(f"obstacles[{i}]", ob) for i, ob in enumerate(s.obstacles)]:
         _check_motion(s, key, item)
     for i, ob in enumerate(s.obstacles):
+        if ob.shape == "box" and not all(ob.size[d] > 0.0 for d in range(s.dim)):
+            # a negative edge made a body of negative mass that carved nothing, a zero one a body of no mass
+            raise SceneError(f"obstacles[{i}].size = {list(ob.size[: s.dim])!r}: every edge length must be > 0 (m)")
         if ob.density > 0.0:
             _check_floating(s, f"obstacles[{i}]", ob)
         elif any(ob.free_rotation):
@@ -1138,7 +1148,7 @@ def _check_motion(s, key: str, item):
     motion = Motion.of(item)
     reach = math.hypot(*_domain_extent(s)) + math.hypot(*item.pivot)  # no wall point farther from the pivot
     speed = motion.largest_speed(reach) if motion is not None else 0.0
-    if speed >= s.sph.sound_speed:
+    if not speed < s.sph.sound_speed:  # NaN too (a path of +-1.7e308 m: inf - inf), which >= let through
         what = "path" if item.path else "velocity / amplitude / frequency"
         raise SceneError(f"{key}.{what}: the wall moves at up to {speed:.3g} m/s, not below "
                          f"sph.sound_speed = {s.sph.sound_speed:g} m/s; a weakly compressible fluid needs walls "
@@ -1217,6 +1227,20 @@ def _check_floating(s, key: str, ob):
     if not any(ob.free[: s.dim]) and not any(ob.free_rotation):
         raise SceneError(f"{key}.free = {list(ob.free[:s.dim])!r}: a floating body needs at least one free axis "
                          f"(or {key}.free_rotation; or density = 0 for a fixed obstacle)")
+    # a body larger than the domain, or starting outside it, only fails later (its mass overflowed, or it
+    # "left the domain" at step 0)
+    across = 2.0 * ob.radius if ob.shape == "sphere" else math.hypot(*ob.size[: s.dim])
+    extent = math.hypot(*_domain_extent(s)[: s.dim])
+    if not across < extent:
+        what = f"{key}.radius = {ob.radius!r}" if ob.shape == "sphere" else f"{key}.size = {list(ob.size[: s.dim])!r}"
+        raise SceneError(f"{what}: a floating body {across:.3g} m across, not smaller than the domain "
+                         f"({extent:.3g} m across its box)")
+    lo, hi = _domain_box(s)
+    if ob.frame == "world" and not all(lo[d] <= ob.center[d] <= hi[d] for d in range(s.dim)):
+        o = s.origin  # the scene file's coordinates in the message, not the run's
+        raise SceneError(f"{key}.center = {[ob.center[d] + o[d] for d in range(s.dim)]!r}: outside the domain's box "
+                         f"{[lo[d] + o[d] for d in range(s.dim)]!r} .. {[hi[d] + o[d] for d in range(s.dim)]!r}; a "
+                         "floating body starts inside the domain")
 
 
 def _build_tables(cls, name: str, raw, required: tuple, hint: str) -> tuple:
@@ -1396,11 +1420,12 @@ def bytes_per_particle(s: Scene, backend: str = "cpu") -> int:
 
 def block_estimate(block: Block, dim: int, dx: float) -> float:
     """About how many lattice points ``block`` fills (before anything outside the domain or inside an
-    obstacle is carved away)."""
+    obstacle is carved away); inf where that overflows, for a tiny spacing or a huge block (products,
+    not ``**``, which raises on overflow; the caller refuses more than particles.max_particles)."""
     if block.shape == "box":
         return float(math.prod(max((block.max[d] - block.min[d]) / dx, 1.0) for d in range(dim)))
-    volume = math.pi * block.radius**2 if dim == 2 else 4.0 / 3.0 * math.pi * block.radius**3
-    return volume / dx**dim
+    r = block.radius / dx  # the radius in spacings
+    return math.pi * r * r if dim == 2 else 4.0 / 3.0 * math.pi * r * r * r
 
 
 def _domain_extent(s: Scene) -> list[float]:
@@ -1458,8 +1483,12 @@ def resource_estimate(s: Scene, backend: str = "cpu") -> dict:
 def _check_resources(s: Scene, available: int | None = None, backend: str = "cpu"):
     """Refuse a scene that would make more particles than particles.max_particles, or need more memory
     than this machine has free, before anything is allocated."""
-    est = resource_estimate(s, backend)
     dx = s.particles.spacing
+    extent = _domain_extent(s)[: s.dim]
+    if not dx < min(extent):  # (the kernel's constants overflowed at 1e300 m)
+        raise SceneError(f"particles.spacing = {dx!r}: not smaller than the domain, whose shortest edge is "
+                         f"{min(extent):.4g} m")
+    est = resource_estimate(s, backend)
     limit = s.particles.max_particles
     if est["particles"] > limit:
         raise SceneError(f"particles.spacing = {dx!r}: would create about {est['particles']:.3g} particles, more "

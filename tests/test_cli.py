@@ -143,6 +143,21 @@ BAD_RUNS = [
     # (--backend cuda without a GPU: tests/test_cuda.py, in a subprocess without the simulator)
     ("record-suffix", [TINY, "--record", "x.txt"], ["--record", "x.txt", "must end in .rrd"]),
     ("no-viewer-spawn", [TINY, "--no-viewer", "--spawn"], ["--no-viewer", "--spawn"]),
+    # found by a hostile-input sweep (2026-12-06): each was a traceback or a run that went wrong
+    ("spacing-beyond-domain", [TINY, "--set", "particles.spacing=1e300"],
+     ["particles.spacing = 1e+300", "not smaller than the domain"]),
+    ("spacing-tiny", [TINY, "--set", "particles.spacing=1e-300"], ["particles.spacing = 1e-300", "max_particles"]),
+    ("block-radius-huge", [TINY, "--set", "fluid.blocks[1].radius=1e300"], ["inf particles", "max_particles"]),
+    ("rest-density-tiny", [TINY, "--set", "fluid.rest_density=1e-300"],
+     ["fluid.rest_density = 1e-300", "[0.001, 1e+06]"]),
+    ("floating-body-huge", [str(CONFIGS / "floating_box_2d.toml"), "--set", "obstacles[0].shape='sphere'", "--set",
+                            "obstacles[0].radius=1e300"], ["obstacles[0].radius = 1e+300", "not smaller than the domain"]),
+    ("floating-body-outside", [str(CONFIGS / "floating_box_2d.toml"), "--set", "obstacles[0].center=[5,5]"],
+     ["obstacles[0].center = [5.0, 5.0]", "outside the domain's box"]),
+    ("box-negative-edge", [str(CONFIGS / "floating_box_2d.toml"), "--set", "obstacles[0].size=[-0.2,0.1]"],
+     ["obstacles[0].size = [-0.2, 0.1]", "must be > 0"]),
+    ("name-control-character", [TINY, "--set", 'scene.name="x\nsph run: error: forged"'],
+     ["scene.name = ", "forged", "control or format characters"]),
 ]
 
 
@@ -163,13 +178,50 @@ def test_bad_input_exits_2_names_the_problem_and_writes_nothing(args, fragments,
     assert not out.exists()
 
 
+@pytest.mark.fast
+def test_a_wall_path_whose_speed_is_not_a_number_is_refused(tmp_path, capsys):
+    """A path of +-1.7e308 m makes the largest speed inf - inf = NaN, which `speed >= c0` let through:
+    the run went on with the wall at an infinite speed (hostile-input sweep, 2026-12-06)."""
+    scene = tmp_path / "gate.toml"
+    scene.write_text((CONFIGS / "dam_break_2d.toml").read_text() + '\n[[obstacles]]\nshape = "box"\n'
+                     'center = [0.6, 0.3]\nsize = [0.02, 0.6]\npath = [[0, 0, 0], [1, 1.7e308, 0], [2, -1.7e308, 0]]\n')
+    out = tmp_path / "out"
+    rc = main(["run", str(scene), "--steps", "1", "--out", str(out), "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "obstacles[0].path" in err and "nan m/s" in err and "Traceback" not in err, err
+    assert not out.exists()
+
+
+@pytest.mark.fast
+@pytest.mark.parametrize("name", ["../escaped", "/tmp/elsewhere", "..", "", ".", "-x"])
+def test_a_scene_name_never_chooses_a_folder_outside_runs(name, tmp_path, monkeypatch, capsys):
+    """Without --out a run writes to runs/<scene.name>: a name that is not one plain path component
+    ('../x', '/abs', '..') would have written outside runs/ (hostile-input sweep, 2026-12-06)."""
+    monkeypatch.chdir(tmp_path)
+    rc = main(["run", TINY, "--steps", "1", "--quiet", "--set", f"scene.name={name!r}"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "scene.name" in err and "give --out FOLDER" in err and "Traceback" not in err, err
+    assert list(tmp_path.iterdir()) == []  # nothing written, not even runs/
+
+
+@pytest.mark.fast
+def test_an_output_path_the_system_refuses_is_one_line(tmp_path, capsys):
+    for out, fragment in [(tmp_path / ("a" * 300), "not a usable path"), (Path(""), "name a folder")]:
+        rc = main(["run", TINY, "--steps", "1", "--quiet", "--out", str(out)])
+        err = capsys.readouterr().err
+        assert rc == 2 and fragment in err and "Traceback" not in err, err
+
+
 @pytest.mark.parametrize("args,fragments", [
     (["--steps", "3", "--until", "0.1"], ["--until", "--steps", "not allowed"]),
     (["--steps", "-1"], ["--steps", "must be >= 0"]),
     (["--until", "0"], ["--until", "must be > 0"]),
+    (["--until", "inf"], ["--until", "must be finite"]),
+    (["--steps", "99999999999999"], ["--steps", "at most 1,000,000,000 steps"]),
     (["--precision", "f16"], ["--precision", "f16"]),
     (["--backend", "opencl"], ["--backend", "opencl"]),
-], ids=["steps-and-until", "negative-steps", "until-zero", "precision-f16", "backend-opencl"])
+], ids=["steps-and-until", "negative-steps", "until-zero", "until-inf", "steps-huge", "precision-f16",
+        "backend-opencl"])
 @pytest.mark.fast
 def test_bad_options_exit_2_before_anything_runs(args, fragments, tmp_path, capsys):
     out = tmp_path / "out"
