@@ -1298,9 +1298,38 @@ def _check_open_boundaries(s: Scene):
             if all(z.min[d] < hi[d] and lo[d] < z.max[d] for d in range(s.dim)):
                 raise SceneError(f"{key}: overlaps {other_key}")
         boxes.append((key, z.min, z.max))
+        _check_open_edge(s, key, name, vec_key, vec, axis, z)
     if s.sph.solver != "wcsph":
         raise SceneError(f"{zones[0][0]}[{zones[0][1]}]: inlets and outlets need sph.solver = 'wcsph' (DFSPH's "
                          "solves do not impose the zones' velocities)")
+
+
+def _check_open_edge(s: Scene, key: str, name: str, vec_key: str, vec, axis: int, z):
+    """An inlet's upstream face, an outlet's downstream face, lies on an open edge of the domain: on
+    the domain box's face along its axis, the flow pointing in (an inlet) or out (an outlet), and no
+    wall there. An outlet pointing into the domain or placed mid-channel removed the fluid (2,280 of
+    2,400 particles in 2 steps), an inlet mid-channel compressed it (hostile-input sweep, 2026-12-06)."""
+    lo, hi = _domain_box(s)
+    slack = 1e-9 * max(_domain_extent(s)[: s.dim])
+    inward = vec[axis] > 0.0  # an inlet's flow and an outlet's direction both point along +axis
+    if name == "inlets":
+        face, edge = (z.min[axis], lo[axis]) if inward else (z.max[axis], hi[axis])
+        which = "upstream"
+    else:
+        face, edge = (z.max[axis], hi[axis]) if inward else (z.min[axis], lo[axis])
+        which = "downstream"
+    ax = "xyz"[axis]
+    if abs(face - edge) > slack:
+        raise SceneError(f"{key}: its {which} face ({ax} = {face:g} m, from {vec_key} = {list(vec[: s.dim])!r}) must "
+                         f"lie on the domain's edge at {ax} = {edge:g} m, where the flow "
+                         f"{'enters' if name == 'inlets' else 'leaves'}")
+    walled = s.domain.container != "none" or s.domain.periodic[axis] or any(
+        abs(pl.normal[axis]) > 0.0 and all(pl.normal[d] == 0.0 for d in range(s.dim) if d != axis)
+        and abs(pl.point[axis] - face) <= slack for pl in s.domain.planes)
+    if walled:
+        raise SceneError(f"{key}: its {which} face at {ax} = {face:g} m is a wall or a periodic edge, not an open one "
+                         "(inlets and outlets need domain.container = 'none', no plane on that face and no "
+                         f"periodic {ax})")
 
 
 def _domain_box(s: Scene) -> tuple[list, list]:

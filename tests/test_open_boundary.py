@@ -37,6 +37,13 @@ BAD = [
     (["inlets[0].min=[0.0, 0.0, 0.1]"], "inlets[0]: min and max z must be 0 in a 2D scene"),
     (["inlets[0].max=[3e-3, 1e6]"], "inlets[0]: the zone [0.0, 0.0] .. [0.003, 1000000.0] reaches outside the domain's "
      "box [0.0, 0.0] .. [0.06, 0.01]"),
+    # an outlet pointing in or placed mid-channel removed the fluid, an inlet mid-channel compressed it
+    (["outlets[0].direction=[-1.0, 0.0]"], "outlets[0]: its downstream face (x = 0.057 m, from outlets[0].direction = "
+     "[-1.0, 0.0]) must lie on the domain's edge at x = 0 m"),
+    (["outlets[0].min=[0.03, 0.0]", "outlets[0].max=[0.033, 0.01]"], "outlets[0]: its downstream face (x = 0.033 m"),
+    (["inlets[0].min=[0.03, 0.0]", "inlets[0].max=[0.033, 0.01]"], "inlets[0]: its upstream face (x = 0.03 m"),
+    (["inlets[0].velocity=[-0.01, 0.0]"], "inlets[0]: its upstream face (x = 0.003 m"),
+    (["inlets[0].velocity=[0.0, 0.01]"], "inlets[0]: its upstream face at y = 0 m is a wall or a periodic edge"),
 ]
 
 
