@@ -22,7 +22,7 @@ from sphcore.physics.damping import DAMPING_COLUMNS
 from sphcore.physics.open_boundary import ZONE_COLUMNS, ZONE_FAR, ZONE_INLET, ZONE_NONE, ZONE_OUTLET
 from sphcore.physics.traction import surface_points
 from sphcore.physics.walls import flag_near_cells
-from sphcore.scene import Scene
+from sphcore.scene import Scene, SceneError
 
 
 MOTION_COLUMNS = 15  # Walls.motion: u_w, a_w, Omega, alpha, P(t)
@@ -182,11 +182,21 @@ def build_walls(scene: Scene, kernel: Kernel, H: float, dtype) -> Walls:
     else:  # none: bounds given explicitly
         corners += [np.array(dom.bounds_min, dtype=float), np.array(dom.bounds_max, dtype=float)]
     n_container = len(kinds)
-    for pl in dom.planes:
+    flat = [(r[0:3], r[3:6]) for k, r in zip(kinds, rows) if k == WallKind.PLANE]  # (point, normal) of each plane
+    for i, pl in enumerate(dom.planes):
         nrm = np.array(pl.normal, dtype=float)
+        nrm = nrm / math.hypot(*nrm)  # hypot: a normal of 1e-300 has a direction, np.linalg.norm's square lost it
+        point = np.array(pl.point, dtype=float)
+        for q, (p_other, n_other) in enumerate(flat):
+            # the same plane twice pushes the fluid twice (a plane on the box's floor: 70 x the compression)
+            if float(nrm @ n_other) > 1.0 - 1e-9 and abs(float(nrm @ (point - p_other))) <= 1e-6 * dx:
+                what = "a wall of the container" if q < len(flat) - i else f"domain.planes[{q - (len(flat) - i)}]"
+                raise SceneError(f"domain.planes[{i}]: point = {list(pl.point[: scene.dim])!r}, normal = "
+                                 f"{list(pl.normal[: scene.dim])!r} is {what} again (a wall counted twice pushes twice)")
+        flat.append((point, nrm))
         moving.append((len(kinds), Motion.of(pl)))
         kinds.append(WallKind.PLANE)
-        rows.append(_row(point=pl.point, normal=nrm / np.linalg.norm(nrm)))
+        rows.append(_row(point=pl.point, normal=nrm))
     for ob in scene.obstacles:
         moving.append((len(kinds), floating_body(scene, ob, len(kinds)) if ob.density > 0.0 else Motion.of(ob)))
         centre = np.array(ob.center, dtype=float)

@@ -377,3 +377,20 @@ def test_a_misspelled_key_gets_the_close_name():
     with pytest.raises(SceneError) as e:
         load_scene(CONFIGS / "tiny.toml", ["time.zzz=1"])
     assert "did you mean" not in str(e.value)
+
+
+@pytest.mark.fast
+@pytest.mark.parametrize("planes, again", [
+    ('[[domain.planes]]\npoint = [0.3, 0.0]\nnormal = [0.0, 2.0]\n', "a wall of the container again"),
+    ('[[domain.planes]]\npoint = [0.1, 0.2]\nnormal = [1.0, 0.0]\n[[domain.planes]]\npoint = [0.1, 0.5]\n'
+     'normal = [1e-300, 0.0]\n', "domain.planes[0] again"),
+])
+def test_a_wall_given_twice_is_refused(planes, again, tmp_path):
+    """A plane on the box's floor pushed the fluid twice there: 70 x the compression of the same tank
+    without it, exit 0 (hostile-input sweep, 2026-12-06). A normal as small as 1e-300 still has its
+    direction (np.linalg.norm's square underflowed to 0: NaN walls)."""
+    from sphcore.model import Model
+    path = tmp_path / "twice.toml"
+    path.write_text((CONFIGS / "dam_break_2d.toml").read_text() + "\n" + planes)
+    with pytest.raises(SceneError, match=re.escape(again)):
+        Model(load_scene(path), "f64", "cpu")
