@@ -160,8 +160,13 @@ def _fill_slab(block, scene: Scene, walls: Walls, dx: float, slab, earlier):
     pts = _block_points(block, scene, dx, slab)
     outside = _outside_domain(walls, scene, pts, dx)
     keep = _kept_by_walls(walls, pts, dx) & ~outside
-    for lo, hi in earlier:  # blocks must not overlap: skip points already filled by an earlier block
-        keep &= ~np.all((pts >= lo) & (pts <= hi), axis=1)
+    if len(pts) and earlier:
+        # blocks must not overlap: skip points already filled by an earlier block; only the boxes that
+        # meet this slab's are tested (3,000 small blocks took 34 s testing every box against every slab)
+        lo_all, hi_all = np.array([b[0] for b in earlier]), np.array([b[1] for b in earlier])
+        near = np.all((lo_all <= pts.max(axis=0)) & (hi_all >= pts.min(axis=0)), axis=1)
+        for lo, hi in zip(lo_all[near], hi_all[near]):
+            keep &= ~np.all((pts >= lo) & (pts <= hi), axis=1)
     return pts[keep], len(pts), int(outside.sum())
 
 
@@ -197,11 +202,10 @@ def fill_blocks(scene: Scene, walls: Walls, slab_points: int = SLAB_POINTS) -> l
     if estimate > scene.particles.max_particles:  # validated at load; scenes made by dataclasses.replace too
         raise SceneError(f"particles.spacing = {dx!r}: would create about {estimate:.3g} particles, more than "
                          f"particles.max_particles = {scene.particles.max_particles} (raise the spacing or the limit)")
-    filled = []
+    filled, earlier = [], []  # earlier: each filled block's points' box, grown by half a spacing
     with ThreadPoolExecutor(_workers()) as pool:
         for i, block in enumerate(scene.fluid.blocks):
             key = f"fluid.blocks[{i}]"
-            earlier = [(prev.min(axis=0) - 0.5 * dx, prev.max(axis=0) + 0.5 * dx) for prev, _ in filled if len(prev)]
             parts = list(pool.map(lambda slab: _fill_slab(block, scene, walls, dx, slab, earlier),
                                   _slabs(block, scene.dim, dx, slab_points)))
             n_pts = sum(p[1] for p in parts)
@@ -218,6 +222,7 @@ def fill_blocks(scene: Scene, walls: Walls, slab_points: int = SLAB_POINTS) -> l
                 raise SceneError(f"{key}: no particle of this block is left inside the domain (within half a spacing "
                                  "of a wall, inside an obstacle or filled by an earlier block)")
             filled.append((pts, np.array(block.velocity, dtype=float)))
+            earlier.append((pts.min(axis=0) - 0.5 * dx, pts.max(axis=0) + 0.5 * dx))
     return filled
 
 
