@@ -17,6 +17,10 @@ into a temporary folder that is renamed into place, then rewrites ``latest`` (at
 crash mid-write never leaves a corrupt "latest". A resumed run may use any number of peers: each
 peer reads all parts and keeps the particles of its block.
 
+``restore`` checks what only the run knows before it changes anything: every extra_* array is one
+the run's solver carries, of its shape and dtype, and every mass is within MASS_FACTOR of the scene's
+particle mass.
+
 A part or manifest that cannot be written (a full disk: ENOSPC, or any OSError) raises
 ``CheckpointWriteError``, which names the path, the space the file needs and the space free; what
 was half-written is removed first. The runs (launch/run.py, nodes/peer.py) log it, skip that
@@ -38,7 +42,8 @@ from pathlib import Path
 
 import numpy as np
 
-from sphcore.state import CARRIED, EXTRA_PREFIX, ROW_SHAPE, ParticleState, is_carried, merge_by_id
+from sphcore.state import (CARRIED, EXTRA_PREFIX, ROW_SHAPE, ParticleState, carried_layout, is_carried,
+                           merge_by_id)
 
 FORMAT = "sphfluid-checkpoint-1"
 
@@ -211,7 +216,7 @@ def _committed_at(folder: Path) -> float:
 def _named_latest(root: Path) -> str | None:
     try:
         return (Path(root) / "latest").read_text().strip()
-    except OSError:
+    except (OSError, ValueError):  # ValueError: not UTF-8 text (UnicodeDecodeError)
         return None
 
 
@@ -226,13 +231,35 @@ class Checkpoint:
         return int(self.manifest["step"])
 
 
+_FOLDER = re.compile(r"^step_\d{8,}$")
+
+
+def _read_latest(latest: Path) -> str:
+    """The folder name a ``latest`` file holds (as commit writes it: folder_name(step), one line);
+    CheckpointError naming the file if it is unreadable, not UTF-8 text or not such a name (a name
+    with a folder in it, e.g. ../.., would make load read outside the checkpoints)."""
+    try:
+        data = latest.read_bytes()
+    except OSError as e:
+        raise CheckpointError(f"{latest}: unreadable ({e.strerror or e})") from None
+    try:
+        name = data.decode("utf-8").strip()
+    except UnicodeDecodeError as e:
+        raise CheckpointError(f"{latest}: not text (byte 0x{data[e.start]:02x} at offset {e.start} is not UTF-8); "
+                              "expected the name of a checkpoint folder, e.g. step_00000300") from None
+    if not _FOLDER.match(name):
+        raise CheckpointError(f"{latest}: holds {_short(name)}; expected the name of a checkpoint folder, e.g. "
+                              "step_00000300")
+    return name
+
+
 def resolve(path: Path) -> Path:
     """A checkpoint folder from a run's OUT folder, its checkpoints/ folder or the folder itself."""
     path = Path(path)
     for root in (path / "checkpoints", path):
         latest = root / "latest"
         if latest.is_file():
-            return root / latest.read_text().strip()
+            return root / _read_latest(latest)
     if (path / "manifest.json").is_file():
         return path
     raise CheckpointError(f"{str(path)!r}: no checkpoint here (expected OUT/checkpoints/latest, a "
@@ -274,11 +301,27 @@ def _last_limit(v):
 
 _HEX64 = re.compile(r"^[0-9a-f]{64}$")
 
+# The latest time (s) a checkpoint may hold. t is a double: at t the next step adds dt to a number
+# whose spacing is about t * 2^-52, so from some t on a step no longer advances the clock (at
+# t = 1e20 the spacing is 16384 s and t + dt == t: --until never arrives). Up to 1e9 s the spacing
+# is at most 1.2e-7 s, below the steps runs take (time.dt <= 1 s; the CFL limits typically give
+# 1e-5 .. 1e-3 s), and no scene gets there by itself: time.steps <= 1e9 steps of time.dt <= 1 s.
+T_MAX = 1e9
+
+# How far (either way) a checkpoint's masses may be from its scene's particle mass (Model.mass = rho0 /
+# the kernel's lattice sum, about rho0 dx^dim: every particle of a block or an inlet gets it, so a run
+# without live changes has no other mass). A live change of fluid.rest_density gives new particles
+# (an inlet's, a reset's) the new mass while the others keep theirs, so masses may differ from that
+# of the scene saved with the checkpoint, but a factor of a thousand is a damaged file (or a change
+# of rho0 the fluid cannot follow: rho / rho0 would sit at 1e3 or 1e-3); such masses underflow rho or
+# V = m / rho to 0 in the step (a ZeroDivisionError deep in the compiled passes).
+MASS_FACTOR = 1e3
+
 # Every field of manifest.json: (check, what is allowed). A manifest with a field missing, of
 # another type or out of range is refused naming the field, its value and what is allowed.
 MANIFEST_SCHEMA = {
     "step": _integer(0),
-    "t": _number(0.0),
+    "t": _number(0.0, T_MAX),
     "dt": _number(0.0, 1.0, lo_open=True),           # time.dt's range: a step of 0 never advances
     "dt_prev": _number(0.0, 1.0),
     "leaks": _integer(0),
@@ -359,6 +402,10 @@ def _check_part(part: dict, entry: dict, folder: Path, dtype):
             raise CheckpointError(f"{folder}: part {name}: {key!r} holds non-finite values")
     if np.any(part["m"] <= 0):
         raise CheckpointError(f"{folder}: part {name}: 'm' holds masses <= 0")
+    tiny = np.finfo(dtype).tiny
+    if np.any(part["m"] < tiny):  # subnormal: rho = sum m W and m / rho lose their digits or become 0
+        raise CheckpointError(f"{folder}: part {name}: 'm' holds {float(part['m'].min())!r}: masses must be normal "
+                              f"{np.dtype(dtype).name} numbers (>= {tiny:.4g} kg)")
 
 
 def load(path: Path) -> Checkpoint:
@@ -413,6 +460,34 @@ def _restore_open(sim, ckpt: Checkpoint):
     op.outflow = op.n_initial + made - len(ids)
 
 
+def _check_fits_run(sim, ckpt: Checkpoint):
+    """The checkpoint's arrays are what this run carries: each extra_* array one the run carries
+    (its solver's, sphcore/state.py), of its row shape and dtype (load only knows one row per
+    particle: an extra of another shape would reach the compiled passes); and masses within
+    MASS_FACTOR of the scene's particle mass."""
+    a = ckpt.arrays
+    n = len(a["id"])
+    layout = carried_layout(n, sim.dtype, sim.state.extra)
+    carried = ", ".join(k for k in layout if k.startswith(EXTRA_PREFIX)) or "none"
+    for key, values in a.items():
+        if not key.startswith(EXTRA_PREFIX):
+            continue
+        if key not in layout:
+            raise CheckpointError(f"{ckpt.path}: {key!r}: this run carries no such array (the extra arrays it carries: "
+                                  f"{carried})")
+        shape, dtype = layout[key]
+        if values.shape != shape or values.dtype != dtype:
+            raise CheckpointError(f"{ckpt.path}: {key!r} is {values.dtype} {values.shape}, this run carries it as "
+                                  f"{np.dtype(dtype).name} {shape}")
+    nominal = float(sim.model.mass)
+    lo, hi = nominal / MASS_FACTOR, nominal * MASS_FACTOR
+    masses = a["m"]
+    if n and not (lo <= float(masses.min()) and float(masses.max()) <= hi):
+        bad = float(masses.min()) if float(masses.min()) < lo else float(masses.max())
+        raise CheckpointError(f"{ckpt.path}: 'm' holds {bad:.6g} kg: its scene's particles have {nominal:.6g} kg "
+                              f"(masses from {lo:.6g} to {hi:.6g} kg are accepted)")
+
+
 def restore(sim, ckpt: Checkpoint):
     """Put the checkpoint's particles and step state into a freshly built Simulation of its scene."""
     a, m = ckpt.arrays, ckpt.manifest
@@ -420,6 +495,7 @@ def restore(sim, ckpt: Checkpoint):
     if origin != list(sim.scene.origin):  # its positions are relative to another point than this run's
         raise CheckpointError(f"{ckpt.path}: origin = {origin}: its positions are relative to that point, this "
                               f"version runs its scene relative to {list(sim.scene.origin)}")
+    _check_fits_run(sim, ckpt)  # before anything of sim changes
     if sim.open.active:  # inlets and outlets: the particles at the checkpoint's time, not the scene's initial ones
         _restore_open(sim, ckpt)
     elif len(a["id"]) != sim.n_particles or not np.array_equal(a["id"], np.sort(sim.state.id)):

@@ -59,6 +59,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sphcore.checkpoint import CheckpointError
 from sphcore.choices import KERNELS, Kernel
 from sphcore.initial import check_probes_inside, outside_domain
 from sphcore.physics.kernels import kernel_constants
@@ -276,7 +277,8 @@ class ProbeWriter:
     A run that starts at step k > 0 (resumed from a checkpoint, or restarted after a lost peer)
     keeps the rows of steps <= k of an existing probes.csv with the same header and drops the later
     ones, which the run is about to write again: no row is doubled or lost. A run from step 0, or a
-    file with other columns, starts the file afresh."""
+    file with other columns, starts the file afresh; a file that is not text stops the run before
+    its first step (CheckpointError)."""
 
     def __init__(self, path: Path, probes: Probes, start_step: int):
         self.path = Path(path)
@@ -284,7 +286,7 @@ class ProbeWriter:
         self.header = ",".join(["step", "t", *probes.names])
         kept = []
         if start_step > 0 and self.path.is_file():
-            lines = self.path.read_text().splitlines()
+            lines = self._existing_lines(start_step)
             if lines and lines[0] == self.header:
                 for line in lines[1:]:
                     step = line.split(",", 1)[0]
@@ -295,6 +297,23 @@ class ProbeWriter:
         os.replace(tmp, self.path)
         self.file = open(self.path, "a")
         self.written = None  # the step of the last row written
+
+    def _existing_lines(self, start_step: int) -> list[str]:
+        """The lines of the probes.csv a continued run finds. One with other columns is another
+        scene's and is started afresh; one that is not UTF-8 text is no probes.csv at all (some other
+        file under that name) and is refused rather than overwritten. CheckpointError, the type the
+        CLI reports as bad input: only a run continuing a checkpoint (start_step > 0) reads it."""
+        try:
+            data = self.path.read_bytes()
+        except OSError as e:
+            raise CheckpointError(f"{self.path}: unreadable ({e.strerror or e}); a run resumed at step "
+                                  f"{start_step} keeps its rows up to that step") from None
+        try:
+            return data.decode("utf-8").splitlines()
+        except UnicodeDecodeError as e:
+            raise CheckpointError(f"{self.path}: not a probes.csv (byte 0x{data[e.start]:02x} at offset {e.start} is "
+                                  f"not UTF-8 text); a run resumed at step {start_step} keeps the rows up to that step "
+                                  "of the probes.csv it wrote: move the file away or choose another --out") from None
 
     def after_step(self):
         """Append the newest sample if it is of this step and not written yet."""

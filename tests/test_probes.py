@@ -241,6 +241,27 @@ def test_a_resumed_run_neither_doubles_nor_loses_rows(tmp_path):
     assert resumed == whole
 
 
+@pytest.mark.fast
+def test_a_resumed_run_refuses_a_probes_csv_that_is_not_text_with_one_line_and_keeps_it(tmp_path, capsys):
+    # Given a run checkpointed at step 2 whose probes.csv was replaced by binary bytes
+    out = tmp_path / "run"
+    assert main(["run", str(ROOT / "configs" / "dam_break_2d.toml"), "--steps", "2", "--checkpoint-every", "2",
+                 "--set", "output.probes_every=1", "--out", str(out), "--quiet", "--no-viewer"]) == 0
+    garbage = bytes([0xBB, 0xCF, 0xA1, 0x1B]) * 64
+    (out / "probes.csv").write_bytes(garbage)
+    capsys.readouterr()
+    # When it is resumed into the same folder (which keeps the probes.csv rows up to step 2)
+    rc = main(["run", "--resume", str(out), "--steps", "4", "--out", str(out), "--quiet", "--no-viewer"])
+    # Then exit 2, one line naming the file and why, and the file is left as it was
+    err = capsys.readouterr().err
+    assert rc == 2, err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert "Traceback" not in err and len(lines) == 1 and lines[0].startswith("sph run: error: "), err
+    line = lines[0]
+    assert f"{out / 'probes.csv'}: not a probes.csv (byte 0xbb at offset 0 is not UTF-8 text)" in line, line
+    assert (out / "probes.csv").read_bytes() == garbage
+
+
 # -- validation: the hydrostatic tank --------------------------------------------------------------
 @pytest.mark.slow  # a validation case (minutes): the slow tier; the probes' sampling is tested above
 def test_the_hydrostatic_tank_measured_by_its_probes_passes(tmp_path, capsys):
