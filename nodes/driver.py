@@ -291,13 +291,13 @@ def drive(peer: PeerRun, plan: RunPlan, frames: FrameSink | None = None):
                         on_hold=lambda held: progress("paused" if held else "running"))
     maker = frames.maker if frames is not None else None
     events = _EventFeed(maker, halo, plan.restarts, sim.step_index)
+    probes = None  # rank 0 writes OUT/probes.csv (a resumed run keeps the rows up to its step)
     if plan.out is not None:  # before the first step: a run that cannot keep its result does not start
         prepare_output(plan.out)
+        if rank == 0 and sim.probes.items:  # before the summary: a probes.csv it refuses leaves no "running" run
+            probes = ProbeWriter(plan.out / "probes.csv", sim.probes, sim.step_index)
         write_summary(plan.out / "summary.json", progress_summary(sim, scene, world, peer.t_start, "running"))
     last_summary = [time.perf_counter()]
-    probes = None  # rank 0 writes OUT/probes.csv (a resumed run keeps the rows up to its step)
-    if plan.out is not None and rank == 0 and sim.probes.items:
-        probes = ProbeWriter(plan.out / "probes.csv", sim.probes, sim.step_index)
     vtk = None
     if scene.output.vtk_every:
         from sphcore.vtk import VtkWriter  # VTK is loaded only by runs that write it
