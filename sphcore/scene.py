@@ -139,8 +139,9 @@ class SPH:
                         "the hydrostatic correction of Fourtakas et al. 2019; 0 = no diffusion)", range=(0.0, 1.0),
                         control=LIVE)
     kernel: str = spec("wendland_c2", "smoothing kernel family", choices=tuple(KERNELS), control=COMPILED)
-    support: float = spec(2.3, "support radius H in units of the spacing (about 50 neighbours in 3D at 2.3)",
-                          range=(1.0, 4.0), control=WORLD)
+    support: float = spec(2.3, "support radius H in units of the spacing (about 50 neighbours in 3D at 2.3; from "
+                          "1.5: at 1 no lattice neighbour is within H and the kernel's moments are 0)",
+                          range=(1.5, 4.0), control=WORLD)
     eos: str = spec("tait", "equation of state", choices=tuple(EOSES), control=COMPILED)
     sound_speed: float = spec(20.0, "numerical speed of sound c0 (m/s); >= 10x the largest flow speed",
                               range=(0.0, math.inf), min_exclusive=True, control=LIVE)

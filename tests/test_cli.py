@@ -131,7 +131,7 @@ def test_precision_and_set_reach_the_run(tmp_path):
 BAD_RUNS = [
     ("unknown-key", [TINY, "--set", "sph.kernal=muller"], ["sph.kernal"]),
     ("unknown-section", [TINY, "--set", "sphh.kernel=muller"], ["sphh"]),
-    ("bad-value", [TINY, "--set", "sph.support=0.5"], ["sph.support", "0.5", "[1, 4]"]),
+    ("bad-value", [TINY, "--set", "sph.support=0.5"], ["sph.support", "0.5", "[1.5, 4]"]),
     ("bad-choice", [TINY, "--set", "sph.kernel=gaussian"], ["sph.kernel", "gaussian", "wendland_c2"]),
     ("bad-type", [TINY, "--set", "particles.spacing=fine"], ["particles.spacing", "fine"]),
     ("bad-override-syntax", [TINY, "--set", "sph.kernel"], ["sph.kernel", "section.key=value"]),
