@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sphcore.choices import Kernel, WallKind
-from sphcore.motion import FloatingBody, Motion, inertia_tensor, matmul3, matvec3
+from sphcore.motion import FloatingBody, Motion, inertia_tensor, matmul3, matvec3, rotation_matrix
 from sphcore.physics.kernels import dw_dr, kernel_constants, w
 from sphcore.physics.damping import DAMPING_COLUMNS
 from sphcore.physics.open_boundary import ZONE_COLUMNS, ZONE_FAR, ZONE_INLET, ZONE_NONE, ZONE_OUTLET
@@ -26,16 +26,6 @@ from sphcore.scene import Scene, SceneError
 
 
 MOTION_COLUMNS = 15  # Walls.motion: u_w, a_w, Omega, alpha, P(t)
-
-
-def rotation_matrix(degrees) -> np.ndarray:
-    """R = Rz @ Ry @ Rx for rotations about x, then y, then z (degrees); local -> world."""
-    ax, ay, az = (math.radians(a) for a in degrees)
-    cx, sx, cy, sy, cz, sz = math.cos(ax), math.sin(ax), math.cos(ay), math.sin(ay), math.cos(az), math.sin(az)
-    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
-    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
-    return rz @ ry @ rx
 
 
 @dataclass
@@ -208,10 +198,13 @@ def build_walls(scene: Scene, kernel: Kernel, H: float, dtype) -> Walls:
             kinds.append(WallKind.SPHERE_OUTSIDE)
             rows.append(_row(point=centre, radius=ob.radius))
         elif ob.shape == "mesh":
-            from sphcore.mesh_sdf import pack, signed_distance_grid
+            from sphcore.mesh_sdf import MeshCheckError, pack, signed_distance_grid
             from sphcore.scene import mesh_path
-            origin, step, values = signed_distance_grid(mesh_path(scene, ob), centre, ob.scale * s, Rob, 0.5 * dx,
-                                                        2.0 * H + 2.0 * dx)
+            try:
+                origin, step, values = signed_distance_grid(mesh_path(scene, ob), centre, ob.scale * s, Rob,
+                                                            0.5 * dx, 2.0 * H + 2.0 * dx)
+            except MeshCheckError as e:  # (the scene's loader says it first, naming the keys)
+                raise SceneError(f"obstacles[{scene.obstacles.index(ob)}]: {e}") from None
             kinds.append(WallKind.MESH_OUTSIDE)
             rows.append(np.concatenate([_row(point=centre), pack(origin, step, values)]))
         else:

@@ -53,6 +53,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
+def rotation_matrix(degrees) -> np.ndarray:
+    """R = Rz @ Ry @ Rx for rotations about x, then y, then z (degrees); local -> world."""
+    ax, ay, az = (math.radians(a) for a in degrees)
+    cx, sx, cy, sy, cz, sz = math.cos(ax), math.sin(ax), math.cos(ay), math.sin(ay), math.cos(az), math.sin(az)
+    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
 class _NoRotation:
     """What a wall that does not turn answers (a path, a floating body)."""
     rotates = False

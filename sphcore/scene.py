@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from sphcore.choices import EOSES, INTEGRATORS, KERNELS, PRESSURE_GRADIENTS, VISCOSITIES
+from sphcore.mesh_sdf import MeshCheckError, check_mesh_obstacle
 
 
 class SceneError(ValueError):
@@ -995,9 +996,16 @@ def _check_combinations(s: Scene, files: bool = True, backend: str = "cpu") -> S
             if s.dim != 3:
                 raise SceneError(f"obstacles[{i}].shape = 'mesh': mesh obstacles need a 3D scene")
             path = mesh_path(s, ob)
+            if path.is_dir():
+                raise SceneError(f"obstacles[{i}].file = {ob.file!r}: {path} is a folder, not a mesh file (give an "
+                                 f"{', '.join(MESH_SUFFIXES)} file)")
             if not path.is_file():
                 raise SceneError(f"obstacles[{i}].file = {ob.file!r}: no such file ({path})")
             check_mesh_file(path, f"obstacles[{i}].file = {ob.file!r}")
+            try:  # its distance grid's size at this scale and spacing, and whether it is closed
+                check_mesh_obstacle(s, i, path)
+            except MeshCheckError as e:
+                raise SceneError(str(e)) from None
             ob = dataclasses.replace(ob, file=str(path.resolve()))  # resolved: scene.toml works anywhere
         obstacles.append(ob)
     s = dataclasses.replace(s, obstacles=tuple(obstacles))
