@@ -25,11 +25,14 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import math
 import os
 from pathlib import Path
 
 import numpy as np
+
+log = logging.getLogger("sph.mesh")
 
 
 # The largest distance grid built, in nodes. Memory per node, measured (torus, 2-5 M nodes): ~75 B at
@@ -219,6 +222,10 @@ def signed_distance_grid(path: Path, center, scale: float, R, step: float, margi
                     "lower the obstacle's scale or raise particles.spacing")
     lo, hi = b[0::2] - margin, b[1::2] + margin
     shape = np.ceil((hi - lo) / step).astype(np.int64) + 1
+    nodes = int(np.prod(shape))
+    if nodes > 1_000_000:  # VTK takes ~3 us a node on one core and says nothing meanwhile
+        log.info(f"mesh obstacle {path.name}: its signed distance grid, {nodes:,} nodes (about {3e-6 * nodes:.0f} s, "
+                 "once: it is cached)")
     grid = pv.ImageData(dimensions=tuple(int(n) for n in shape), spacing=(step, step, step), origin=tuple(lo))
     d = np.asarray(grid.compute_implicit_distance(mesh)["implicit_distance"], dtype=np.float64)
     values = d.reshape(tuple(shape), order="F")
