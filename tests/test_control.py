@@ -24,11 +24,12 @@ ROOT = Path(__file__).resolve().parent.parent
 
 def send(run_id, endpoint, tls, *command) -> int:
     """``sph control`` with the run's controller certificate; the step at which it was accepted. It
-    waits up to 60 s for rank 0 (the default 10 s was seen to run out on a loaded 2-core machine,
-    where the peers' Zenoh threads wait for a core)."""
+    waits up to 150 s for rank 0 (the default 10 s was seen to run out on a loaded 2-core machine,
+    where the peers' Zenoh threads wait for a core, and 60 s once in a suite started from an empty
+    numba cache, 2026-12-06, while the other worker compiled every CUDA kernel)."""
     done = subprocess.run([sys.executable, "-m", "launch.cli", "control", "--run-id", run_id, "--zenoh", endpoint,
-                           "--tls", str(tls), "--world", "2", "--timeout", "60", *command], cwd=ROOT,
-                          capture_output=True, text=True, timeout=120)
+                           "--tls", str(tls), "--world", "2", "--timeout", "150", *command], cwd=ROOT,
+                          capture_output=True, text=True, timeout=240)
     assert done.returncode == 0 and "sph control: accepted at step" in done.stderr, done.stderr
     return int(done.stderr.rsplit("accepted at step", 1)[1].split()[0])
 
