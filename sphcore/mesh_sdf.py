@@ -117,8 +117,9 @@ def check_grid_size(extent, step: float, margin: float, what: str, advice: str, 
                          f"$SPH_MESH_GRID_MAX_NODES sets another); {advice}")
 
 
-def _read_mesh(path: Path):
-    """The file's triangles (PyVista PolyData, cleaned), VTK's own error printing silenced."""
+def read_mesh(path: Path):
+    """The file's triangles (PyVista PolyData), VTK's own error printing silenced (the callers say
+    what went wrong once: sphcore.scene.check_mesh_file)."""
     import pyvista as pv
     import vtk
     shown = vtk.vtkObject.GetGlobalWarningDisplay()
@@ -127,7 +128,7 @@ def _read_mesh(path: Path):
         mesh = pv.read(str(path))
         if not isinstance(mesh, pv.PolyData):
             mesh = mesh.extract_surface()
-        return mesh.triangulate().clean()
+        return mesh.triangulate()
     finally:
         vtk.vtkObject.SetGlobalWarningDisplay(shown)
 
@@ -142,7 +143,7 @@ def check_mesh_obstacle(scene, i: int, path: Path):
     ob = scene.obstacles[i]
     path = Path(path)
     file_key = f"obstacles[{i}].file = {ob.file!r}"
-    mesh = _read_mesh(path)
+    mesh = read_mesh(path).clean()  # shared points: the open edges are the triangles' unshared sides
     R = rotation_matrix(ob.rotation)
     if ob.frame == "container":
         R = rotation_matrix(scene.domain.rotation) @ R  # the container's frame (boundaries.container_frame)

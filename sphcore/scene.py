@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from sphcore.choices import EOSES, INTEGRATORS, KERNELS, PRESSURE_GRADIENTS, VISCOSITIES
-from sphcore.mesh_sdf import MeshCheckError, check_mesh_obstacle
+from sphcore.mesh_sdf import MeshCheckError, check_mesh_obstacle, read_mesh
 
 
 class SceneError(ValueError):
@@ -923,21 +923,12 @@ def check_mesh_file(path: Path, key: str):
         raise SceneError(f"{key}: a mesh file must end in {', '.join(MESH_SUFFIXES)}, not {path.suffix!r}")
     if path.stat().st_size == 0:
         raise SceneError(f"{key}: the file is empty")
-    import pyvista as pv
-    import vtk
-    shown = vtk.vtkObject.GetGlobalWarningDisplay()
-    vtk.vtkObject.GlobalWarningDisplayOff()
     try:
-        mesh = pv.read(str(path))
-        if not isinstance(mesh, pv.PolyData):
-            mesh = mesh.extract_surface()
-        mesh = mesh.triangulate()
+        mesh = read_mesh(path)
         n_triangles = mesh.n_cells
         points = np.asarray(mesh.points, dtype=np.float64)
     except Exception as e:  # VTK and PyVista raise many kinds for files they cannot parse
         raise SceneError(f"{key}: not a readable mesh ({type(e).__name__}: {str(e)[:120]})") from None
-    finally:
-        vtk.vtkObject.SetGlobalWarningDisplay(shown)
     if n_triangles == 0:
         raise SceneError(f"{key}: no triangles could be read (empty, truncated or corrupt {path.suffix} file)")
     if not np.isfinite(points).all():

@@ -107,14 +107,14 @@ def checked(tmp_path, **obstacle):
 
 def test_the_grid_size_estimate_is_the_grid_built(tmp_path):
     from sphcore.boundaries import rotation_matrix
-    from sphcore.mesh_sdf import _read_mesh, _scaled_extent, grid_nodes, max_grid_nodes, signed_distance_grid
+    from sphcore.mesh_sdf import _scaled_extent, grid_nodes, max_grid_nodes, read_mesh, signed_distance_grid
     from sphcore.scene import mesh_path
     for overrides in [("particles.spacing=0.03",), ("particles.spacing=0.04", "obstacles[0].rotation=[30,40,50]")]:
         sc = scene("mesh_obstacle", *overrides)
         ob, dx = sc.obstacles[0], sc.particles.spacing
         R, step, margin = rotation_matrix(ob.rotation), 0.5 * dx, (2.0 * sc.sph.support + 2.0) * dx
         _, _, values = signed_distance_grid(mesh_path(sc, ob), ob.center, ob.scale, R, step, margin)
-        points = _read_mesh(mesh_path(sc, ob)).points
+        points = read_mesh(mesh_path(sc, ob)).clean().points
         assert grid_nodes(_scaled_extent(points, ob.scale, R), step, margin) == values.size
     assert grid_nodes([1e306, 1e306, 1.0], 0.01, 0.1) == np.inf and grid_nodes([np.inf, 1.0, 1.0], 0.01, 0.1) == np.inf
     assert max_grid_nodes() == 2**24
