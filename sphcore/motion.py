@@ -236,7 +236,7 @@ def _monotone_slopes(t: np.ndarray, X: np.ndarray) -> np.ndarray:
         d0, d1 = delta[:-1], delta[1:]
         h0, h1 = h[:-1], h[1:]
         w1, w2 = 2 * h1 + h0, h1 + 2 * h0
-        same = d0 * d1 > 0
+        same = np.sign(d0) * np.sign(d1) > 0  # (d0 * d1 overflowed for a path of 1e300 m: a warning on stderr)
         with np.errstate(divide="ignore", invalid="ignore"):
             mean = (w1 + w2) / (w1 / d0 + w2 / d1)
         m[1:-1] = np.where(same, mean, 0.0)
