@@ -732,7 +732,7 @@ def read_scene_file(path: str | Path) -> dict:
     if len(raw) > MAX_SCENE_BYTES:
         raise SceneError(f"{path}: larger than {MAX_SCENE_BYTES >> 20} MiB; a scene is a short TOML text file")
     try:
-        text = raw.decode("utf-8")
+        text = raw.decode("utf-8-sig")  # a byte-order mark (editors on Windows write one) is not TOML: dropped
     except UnicodeDecodeError as e:
         raise SceneError(f"{path}: not a text file (byte 0x{raw[e.start]:02x} at offset {e.start} is not UTF-8); "
                          "a scene is a TOML text file") from None

@@ -394,3 +394,12 @@ def test_a_wall_given_twice_is_refused(planes, again, tmp_path):
     path.write_text((CONFIGS / "dam_break_2d.toml").read_text() + "\n" + planes)
     with pytest.raises(SceneError, match=re.escape(again)):
         Model(load_scene(path), "f64", "cpu")
+
+
+@pytest.mark.fast
+def test_a_scene_file_with_a_byte_order_mark_loads(tmp_path):
+    """An editor's UTF-8 byte-order mark used to give 'not valid TOML: Invalid statement (at line 1,
+    column 1)', which did not say why (hostile-input sweep, 2026-12-06)."""
+    path = tmp_path / "bom.toml"
+    path.write_bytes(b"\xef\xbb\xbf" + (CONFIGS / "tiny.toml").read_bytes())
+    assert load_scene(path).scene.name == load_scene(CONFIGS / "tiny.toml").scene.name
