@@ -162,7 +162,8 @@ def build_parser() -> argparse.ArgumentParser:
     length.add_argument("--until", type=_positive_float, default=None, metavar="T",
                         help="run until simulated time T (s)")
     run.add_argument("--out", type=Path, default=None,
-                     help="output folder, checked before the first step (default: runs/<scene name>)")
+                     help="output folder, checked before the first step (default: runs/<scene name>, for a name "
+                          "that is a plain folder name)")
     run.add_argument("--precision", choices=("f32", "f64"), default=None,
                      help="floating point precision (default: the scene's run.precision; auto = f64 on the "
                           "CPU, f32 with --backend cuda)")
