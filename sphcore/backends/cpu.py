@@ -137,11 +137,15 @@ class CpuStages(Engine):
     def rebuild(self, leaving, owned_in: dict, ghosts_in: dict):
         s = self.sim._state
         n = s.n_owned
-        keep = np.ones(n, dtype=bool)
-        keep[leaving] = False
         own = s.carried_arrays(n)
-        new = ParticleState.from_carried({k: np.concatenate([a[keep], owned_in[k], ghosts_in[k]])
-                                          for k, a in own.items()}, self.dtype)
+        if len(leaving) == 0:  # most steps: no particle left, so no boolean selection of every owned row
+            new = ParticleState.from_carried({k: np.concatenate([a, owned_in[k], ghosts_in[k]])
+                                              for k, a in own.items()}, self.dtype)
+        else:
+            keep = np.ones(n, dtype=bool)
+            keep[leaving] = False
+            new = ParticleState.from_carried({k: np.concatenate([a[keep], owned_in[k], ghosts_in[k]])
+                                              for k, a in own.items()}, self.dtype)
         new.n_owned = n - len(leaving) + len(owned_in["id"])
         self.sim.state = new
 
