@@ -719,15 +719,22 @@ def settling_cylinder_closed(quick: bool, out: Path, backend: str = "cpu",
                      opts or CaseOptions(backend))
 
 
+def faxen_terminal_speed(scene) -> float:
+    """m/s: the settling cylinder's (obstacles[0]) terminal speed between the walls of a channel
+    domain.size[0] wide, (rho_b - rho0) g pi a^2 = mu U lambda(a / half-width) (faxen_drag)."""
+    body, half = scene.obstacles[0], 0.5 * scene.domain.size[0]
+    rho, mu = scene.fluid.rest_density, scene.fluid.rest_density * scene.sph.nu
+    g = abs(scene.forces.gravity[1])
+    return (body.density - rho) * g * math.pi * body.radius ** 2 / (mu * faxen_drag(body.radius / half))
+
+
 def _settling(name: str, config: str, quick: bool, out: Path, opts: CaseOptions) -> list[Metric]:
     """The settling cylinder cases: scene ``config``, metric and plot named ``name``."""
     dx = opts.dx or (5.0e-4 if quick else 2.5e-4)
     scene = load_scene(CONFIGS / config, [f"particles.spacing={dx}", *opts.overrides])
     body_spec = scene.obstacles[0]
     a, half = body_spec.radius, 0.5 * scene.domain.size[0]
-    rho, mu = scene.fluid.rest_density, scene.fluid.rest_density * scene.sph.nu
-    g = abs(scene.forces.gravity[1])
-    terminal = (body_spec.density - rho) * g * math.pi * a * a / (mu * faxen_drag(a / half))
+    terminal = faxen_terminal_speed(scene)
     sim = Simulation(scene, opts.precision, opts.backend)
     body = sim.model.walls.bodies[0]
     t_end, window = 0.4, 0.15

@@ -21,7 +21,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from launch.validate import faxen_drag  # noqa: E402
+from launch.validate import faxen_terminal_speed  # noqa: E402
 from sphcore.scene import load_scene  # noqa: E402
 from sphcore.solver import Simulation  # noqa: E402
 
@@ -35,9 +35,8 @@ def main():
     args = ap.parse_args()
     scene = load_scene(args.scene, args.overrides)
     ob = scene.obstacles[0]
-    a, dx, half = ob.radius, scene.particles.spacing, 0.5 * scene.domain.size[0]
-    rho0, g = scene.fluid.rest_density, abs(scene.forces.gravity[1])
-    faxen = (ob.density - rho0) * g * np.pi * a * a / (rho0 * scene.sph.nu * faxen_drag(a / half))
+    a, dx = ob.radius, scene.particles.spacing
+    faxen = faxen_terminal_speed(scene)
     sim = Simulation(scene, "f64")
     body = sim.model.walls.bodies[0]
     report, speeds = 0.05, []

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 ROOT = Path.cwd()
 sys.path.insert(0, str(ROOT))
-from launch.validate import faxen_drag
+from launch.validate import faxen_terminal_speed
 from sphcore.scene import load_scene
 from sphcore.solver import Simulation
 
@@ -39,9 +39,9 @@ ap.add_argument("--report", type=float, default=0.05)
 args = ap.parse_args()
 scene = load_scene(args.scene, args.overrides)
 ob = scene.obstacles[0]
-a, dx, half = ob.radius, scene.particles.spacing, 0.5 * scene.domain.size[0]
-rho0, g = scene.fluid.rest_density, abs(scene.forces.gravity[1])
-faxen = (ob.density - rho0) * g * np.pi * a * a / (rho0 * scene.sph.nu * faxen_drag(a / half))
+a, dx = ob.radius, scene.particles.spacing
+rho0 = scene.fluid.rest_density
+faxen = faxen_terminal_speed(scene)
 sim = Simulation(scene, "f64")
 body = sim.model.walls.bodies[0]
 H = scene.sph.support * dx
