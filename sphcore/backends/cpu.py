@@ -138,14 +138,12 @@ class CpuStages(Engine):
         s = self.sim._state
         n = s.n_owned
         own = s.carried_arrays(n)
-        if len(leaving) == 0:  # most steps: no particle left, so no boolean selection of every owned row
-            new = ParticleState.from_carried({k: np.concatenate([a, owned_in[k], ghosts_in[k]])
-                                              for k, a in own.items()}, self.dtype)
-        else:
+        if len(leaving):  # (most steps none leaves: no boolean selection of every owned row, 0.45 ms a peer step)
             keep = np.ones(n, dtype=bool)
             keep[leaving] = False
-            new = ParticleState.from_carried({k: np.concatenate([a[keep], owned_in[k], ghosts_in[k]])
-                                              for k, a in own.items()}, self.dtype)
+            own = {k: a[keep] for k, a in own.items()}
+        new = ParticleState.from_carried({k: np.concatenate([a, owned_in[k], ghosts_in[k]]) for k, a in own.items()},
+                                         self.dtype)
         new.n_owned = n - len(leaving) + len(owned_in["id"])
         self.sim.state = new
 
