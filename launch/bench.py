@@ -101,18 +101,25 @@ def _device_used() -> int | None:
 
 
 def bench_case(scene_path: Path, dx: float, precision: str, threads: int, steps: int, backend: str = "cpu",
-               neighbours: str = "lists") -> dict:
+               neighbours: str = "lists", skin: float = 0.0, after: int = 0) -> dict:
     """One timed case. Memory per particle: the host's peak RSS during the timed steps over its RSS
     before set-up (so it holds the state, scratch and grid; compiled code too on a cold cache), and on
-    a GPU the device memory in use after the steps over that before set-up."""
+    a GPU the device memory in use after the steps over that before set-up. ``skin``:
+    run.neighbour_skin; ``after``: steps run untimed first (the flow developed, not at rest)."""
     numba.set_num_threads(threads)
-    scene = load_scene(scene_path, _fixed(scene_path, dx) + [f"run.neighbours={neighbours!r}"], backend=backend)
+    scene = load_scene(scene_path, _fixed(scene_path, dx) + [f"run.neighbours={neighbours!r}",
+                                                             f"run.neighbour_skin={skin!r}"], backend=backend)
     rss_before = _memory_kb("VmRSS")
     device_before = _device_used() if backend == "cuda" else None
     sim = Simulation(scene, precision, backend)
     t0 = time.perf_counter()
     sim.step()  # compile or load the cache
     first = time.perf_counter() - t0
+    for k in range(after):
+        sim.step()
+        if (k + 1) % 500 == 0:
+            print(f"  {k + 1} of {after} untimed steps (t = {sim.t:.3f} s)", file=sys.stderr, flush=True)
+    builds = sim.grid.builds
     sim.timers.reset()
     _reset_peak_memory()
     t0 = time.perf_counter()
@@ -136,7 +143,8 @@ def bench_case(scene_path: Path, dx: float, precision: str, threads: int, steps:
         "particles": sim.n_particles, "dx": dx, "steps": steps, "dt": sim.dt, "wall_s": wall,
         "particle_steps_per_s": sim.n_particles * steps / wall, "steps_per_s": steps / wall, "first_step_s": first,
         "neighbours": sim.neighbours_sum / max(sim.state.n_owned, 1), "neighbour_search": neighbours,
-        "cells_per_support": sim.grid.reach,
+        "cells_per_support": sim.grid.reach, "neighbour_skin": skin, "after_steps": after, "t_start": sim.t - steps * sim.dt,
+        "list_builds": (sim.grid.builds - builds) if skin else steps,
         "stage_median_s": stages, "stage_total_s": {k: v["total_s"] for k, v in timed.items()},
         "untimed_s_per_step": untimed,
         "leaks": sim.leaks, "host_bytes_per_particle": host_bpp, "device_bytes_per_particle": device_bpp,
@@ -257,9 +265,11 @@ def run_bench(args) -> int:
         for precision in args.precisions:
             for threads in (args.threads if args.backend == "cpu" else args.threads[:1]):
                 for neighbours in args.neighbours:
-                    r = bench_case(scene_path, dx, precision, threads, args.steps, args.backend, neighbours)
-                    results.append(r)
-                    print(_row(r), flush=True)
+                    for skin in args.skins:
+                        r = bench_case(scene_path, dx, precision, threads, args.steps, args.backend, neighbours,
+                                       skin, args.after)
+                        results.append(r)
+                        print(_row(r), flush=True)
         if args.external:
             results += _external(dx, args.steps, args.threads)
         if args.peers != [1]:
@@ -269,6 +279,7 @@ def run_bench(args) -> int:
         _print_until_ratios(results)
     elif not args.network:
         _print_walk_ratios(results)
+        _print_skin_ratios(results)
         _print_ratios(results)
         _print_peer_ratios(results)
         budget = frame_budget(results)
@@ -380,6 +391,8 @@ def _row(r: dict) -> str:
     where = "cuda     " if r.get("backend") == "cuda" else f"threads={r['threads']}"
     where += " walk " if r.get("neighbour_search") == "walk" else ""
     where += f" cells=H/{r['cells_per_support']}" if r.get("cells_per_support", 1) != 1 else ""
+    if r.get("neighbour_skin"):
+        where += f" skin={r['neighbour_skin']:g} ({r['list_builds']} builds)"
     rate = f" {r['steps_per_s']:7.1f} steps/s" if r.get("backend") == "cuda" else ""
     memory = ""
     for key, label in (("host_bytes_per_particle", "host"), ("device_bytes_per_particle", "device")):
@@ -402,6 +415,19 @@ def _print_walk_ratios(results: list[dict]):
               f"{w['particle_steps_per_s'] / l['particle_steps_per_s']:.3f}x")
 
 
+def _print_skin_ratios(results: list[dict]):
+    """Reused lists / a list a step, the same case side by side (sph bench --skins 0 0.1)."""
+    same = ("precision", "threads", "backend", "particles", "neighbour_search")
+    pairs = [(s, z) for s in results if s.get("neighbour_skin") for z in results
+             if z.get("code") == "sphfluid" and z.get("neighbour_skin") == 0.0 and all(z.get(k) == s.get(k) for k in same)]
+    if pairs:
+        print("\nreused lists (run.neighbour_skin) / a list a step (same case, same run):")
+    for s, z in pairs:
+        print(f"  {s['precision']} threads={s['threads']} N={s['particles']} skin={s['neighbour_skin']:g}: "
+              f"{s['particle_steps_per_s'] / z['particle_steps_per_s']:.3f}x ({s['list_builds']} list builds in "
+              f"{s['steps']} steps)")
+
+
 def _print_ratios(results: list[dict]):
     ours = [r for r in results if r["code"] == "sphfluid" and r.get("neighbour_search", "lists") == "lists"]
     theirs = [r for r in results if r["code"] != "sphfluid"]
@@ -412,9 +438,9 @@ def _print_ratios(results: list[dict]):
         for precision in ("f32", "f64"):
             match = [o for o in ours if o["threads"] == t["threads"] and o["precision"] == precision
                      and abs(o["dx"] - t["dx"]) < 1e-12]
-            if match:
-                o = match[0]
-                print(f"  ours {precision} vs {t['code']} {t['method']} threads={t['threads']} "
+            for o in match:
+                skin = f" skin={o['neighbour_skin']:g}" if o.get("neighbour_skin") else ""
+                print(f"  ours {precision}{skin} vs {t['code']} {t['method']} threads={t['threads']} "
                       f"N={o['particles']}/{t['particles']}: "
                       f"{o['particle_steps_per_s'] / t['particle_steps_per_s']:.2f}x")
 

@@ -53,6 +53,17 @@ def _steps(text: str) -> int:
     return value
 
 
+def _skin(text: str) -> float:
+    """run.neighbour_skin as sph bench --skins takes it: a number in [0, 1] (of the support radius)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"{text!r}: a skin is from 0 to 1 (of the support radius)")
+    return value
+
+
 def _positive_float(text: str) -> float:
     try:
         value = float(text)
@@ -443,6 +454,14 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--neighbours", nargs="+", choices=("lists", "walk"), default=["lists"],
                        help="neighbour search of each case: lists, walk (the 27-cell walk, no lists), or both "
                             "side by side with their ratio (default: lists)")
+    bench.add_argument("--skins", type=_skin, nargs="+", default=[0.0],
+                       help="run.neighbour_skin of each case: 0 builds the lists every step; e.g. --skins 0 0.1 "
+                            "times Verlet lists reused until a particle moves 0.45 x 0.1 H, side by side with "
+                            "their ratio (default: 0)")
+    bench.add_argument("--after", type=_steps, default=0, metavar="STEPS",
+                       help="run STEPS untimed steps before the timed ones, so that the flow has developed (the "
+                            "timed steps otherwise start from rest, where lists are cheapest to build and to "
+                            "reuse); not with --external, --peers, --until or --network (default: 0)")
     bench.add_argument("--external", action="store_true",
                        help="also run PySPH and SPlisHSPlasH on the same scene (if installed)")
     bench.add_argument("--peers", type=_positive_int, nargs="+", default=[1],
@@ -695,6 +714,14 @@ def _check_bench(args):
     for t in args.threads:
         if t < 1 or t > threads_available:
             raise UsageError(f"--threads {t}: this machine allows 1..{threads_available}")
+    if args.after and (args.external or args.peers != [1] or args.until is not None or args.network):
+        raise UsageError(f"--after {args.after}: the other codes and the peer runs start from rest, so --after "
+                         "does not combine with --external, --peers, --until or --network")
+    if any(args.skins) and (args.network or args.backend != "cpu" or args.peers != [1] or args.until is not None
+                            or "walk" in args.neighbours):
+        raise UsageError(f"--skins {' '.join(f'{s:g}' for s in args.skins)}: reused lists are timed in one CPU "
+                         "process with lists (not with --network, --backend cuda, --peers, --until or "
+                         "--neighbours walk)")
     if args.until is not None:
         if args.network or args.backend != "cpu" or args.peers != [1] or args.neighbours != ["lists"]:
             raise UsageError("--until times one CPU process with neighbour lists: it does not combine with "
@@ -712,6 +739,9 @@ def _check_peers(scene, n_peers: int):
     """The scene's decomposition fits n_peers (checked before any process starts)."""
     from nodes.peer import decomposition_for
     from sphcore.solver import Simulation
+    if scene.run.neighbour_skin:  # every caller starts peer processes (--peers N > 1, --hosts)
+        raise UsageError(f"{n_peers} peer(s): run.neighbour_skin = {scene.run.neighbour_skin:g} reuses lists in one "
+                         "process only; peers build theirs every step (set run.neighbour_skin = 0)")
     if n_peers == 1 and not any(scene.decomposition.dims):
         return
     grid = Simulation.grid_for(scene)

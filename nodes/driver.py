@@ -635,7 +635,9 @@ def make_summary(sim: Simulation, scene: Scene, loop: dict, t_setup: float, wall
                    "unconverged_steps": st["unconverged"], "last_mean_error": st["last_error"]}
             for name, st in sim.solver_stats.items()} if sim.dfsph else {})},
         "neighbours": {"mean": sim.neighbours_sum / n if n else 0.0, "max": sim.neighbours_max,
-                       "max_over_run": sim.max_neighbours, "search": sim.model.neighbours},
+                       "max_over_run": sim.max_neighbours, "search": sim.model.neighbours,
+                       **({"skin": sim.grid.skin, "list_builds": sim.grid.builds, "list_reuses": sim.grid.reuses}
+                          if sim.grid.skin else {})},
         "leaks": sim.leaks,
         **({"device_transfer": _per_step(sim.engine.transfer(), sim.step_index)} if sim.backend == "cuda" else {}),
         "max_compression": sim.max_compression,

@@ -517,6 +517,8 @@ def restore(sim, ckpt: Checkpoint):
         key = EXTRA_PREFIX + name
         carried[key] = a[key] if key in a else np.zeros_like(values[:0], shape=(len(a["id"]),) + values.shape[1:])
     sim.state = ParticleState.from_carried(carried, sim.dtype)
+    # a skin's lists: sorted and built by the saved reference positions, as the continuous run had them
+    sim.grid.from_reference = EXTRA_PREFIX + "x_ref" in a
     sim.step_index, sim.t, sim.dt, sim.dt_prev = int(m["step"]), float(m["t"]), float(m["dt"]), float(m["dt_prev"])
     sim.leaks, sim.max_neighbours = int(m["leaks"]), int(m["max_neighbours"])
     sim.max_compression, sim.last_limit = float(m["max_compression"]), m["last_limit"]

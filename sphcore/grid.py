@@ -23,6 +23,16 @@ Each step (``Grid.bin``):
 Summing in this order is what makes a run reproducible bit for bit, and what lets a distributed
 run (ghost rows included) reproduce a single-process run exactly.
 
+With a skin (``run.neighbour_skin`` = s > 0; one process, lists), steps 1-4 run only when needed (a
+Verlet list): step 4 lists every row within H (1 + s) (the *candidates*, cells sized for that
+radius), and the positions at that moment are kept (``state.extra["x_ref"]``, carried: the
+checkpoints hold it). Each step then filters every row's candidates to those within H, in their
+order, which costs about a quarter of a build; a new build comes once some particle has moved
+``REUSE_SHARE`` s H from its reference position (two particles that were farther apart than
+H (1 + s) then cannot have come within H of each other: the triangle inequality, with a margin over
+rounding). The sums run over the candidates' order of the last build, so a resumed run sorts and
+lists by the saved reference positions first, and reproduces the continuous run bit for bit.
+
 Periodic axes wrap cell indices and use minimum-image distances; along them the cell size is
 stretched to L / (R floor(L / H)) so the cells tile the period exactly (the period must hold at
 least 3 support radii).
@@ -42,6 +52,10 @@ from sphcore.state import CARRIED
 NEIGHBOUR_LISTS = 0  # read the list Grid.build_neighbours wrote (nbr, counts)
 CELL_WALK = 1        # walk the cells around the row (cells, cell_begin, cell_end); no list is stored
 REACHES = (1, 2)     # grid cells per support radius along an axis (run.cells_per_support)
+# With a skin s: a build comes once some particle has moved this share of s H since the last one. Half
+# would be exact in real numbers (|dx_i| + |dx_j| < s H); 0.45 leaves 5 % of the skin for rounding
+# (float32 positions carry ~1e-7 relative error; the skin is ~1e-3 of H at least).
+REUSE_SHARE = 0.45
 
 
 class Cells(NamedTuple):
@@ -437,6 +451,67 @@ def _build_neighbour_rows(periodic, x, rows, contiguous, cell_begin, cell_end, o
                       reach, period, H2, nbr, counts)
 
 
+@literal_dispatch(1)
+@njit(cache=True, parallel=True)
+def _filter_neighbours(periodic, x, n_query, cand, cand_counts, period, H2, nbr, counts):
+    """Neighbour lists of rows 0..n_query-1 from their candidate lists (a skin's Verlet lists): every
+    candidate j within H of row i now (the separation as neighbour_row computes it), in the candidates'
+    order. Branch-free stores, as _scan_span's (the last column of ``nbr`` is the spare)."""
+    literally(periodic)
+    cap = nbr.shape[1] - 1
+    for i0 in prange(n_query):
+        i = np.int64(i0)  # as in _build_neighbours: no float64 index arithmetic
+        xi, yi, zi = x[i, 0], x[i, 1], x[i, 2]
+        count = 0
+        for k in range(cand_counts[i]):
+            j = cand[i, k]
+            dx = xi - x[j, 0]
+            dy = yi - x[j, 1]
+            dz = zi - x[j, 2]
+            if periodic:
+                if period[0] > 0.0:
+                    dx = minimum_image(dx, period[0])
+                if period[1] > 0.0:
+                    dy = minimum_image(dy, period[1])
+                if period[2] > 0.0:
+                    dz = minimum_image(dz, period[2])
+            inside = dx * dx + dy * dy + dz * dz < H2
+            nbr[i, min(count, cap)] = j
+            count += 1 if inside else 0
+        counts[i] = count
+
+
+@literal_dispatch(1)
+@njit(cache=True, parallel=True)
+def _max_displacement2(periodic, x, x_ref, n, period, chunks):
+    """The largest |x_i - x_ref_i|^2 over rows 0..n-1 (minimum image on periodic axes), as float64;
+    ``chunks`` (k,) float64 scratch, one maximum per chunk of rows."""
+    literally(periodic)
+    k = chunks.shape[0]
+    for c in prange(k):
+        lo = c * n // k
+        hi = (c + 1) * n // k
+        most = 0.0
+        for i in range(lo, hi):
+            dx = x[i, 0] - x_ref[i, 0]
+            dy = x[i, 1] - x_ref[i, 1]
+            dz = x[i, 2] - x_ref[i, 2]
+            if periodic:
+                if period[0] > 0.0:
+                    dx = minimum_image(dx, period[0])
+                if period[1] > 0.0:
+                    dy = minimum_image(dy, period[1])
+                if period[2] > 0.0:
+                    dz = minimum_image(dz, period[2])
+            d2 = np.float64(dx) * dx + np.float64(dy) * dy + np.float64(dz) * dz
+            if d2 > most:
+                most = d2
+            elif d2 != d2:  # a NaN position: build anew (the health check then names the cause)
+                most = np.inf
+        chunks[c] = most
+    return chunks.max() if k else 0.0
+
+
 class Grid:
     """Global uniform grid plus the per-step sort and neighbour list of one process.
 
@@ -449,9 +524,11 @@ class Grid:
     neighbours than the capacity.
     """
 
-    def __init__(self, lo, hi, H, periodic, dtype, *, reach, capacity=64):
+    def __init__(self, lo, hi, H, periodic, dtype, *, reach, capacity=64, skin=0.0):
         if reach not in REACHES:
             raise ValueError(f"grid reach must be one of {REACHES} cells per support radius, got {reach!r}")
+        support = H
+        H = support * (1.0 + skin)  # the lists' radius: the cells are sized for it
         lo = np.asarray(lo, dtype=np.float64)
         hi = np.asarray(hi, dtype=np.float64)
         ncell = np.ones(3, dtype=np.int64)
@@ -462,7 +539,8 @@ class Grid:
             if periodic[d]:
                 if math.floor(L / H) < 3:
                     raise ValueError(f"periodic axis {'xyz'[d]} is {L:g} m long: it must hold at least 3 "
-                                     f"support radii ({3 * H:g} m)")
+                                     f"support radii ({3 * H:g} m"
+                                     f"{f', with run.neighbour_skin = {skin:g}' if skin else ''})")
                 ncell[d] = reach * int(math.floor(L / H))
                 cell[d] = L / ncell[d]
                 period[d] = L
@@ -477,7 +555,10 @@ class Grid:
         self.ncell = ncell.astype(np.int64)
         self.period = period.astype(self.dtype)
         self.periodic = bool(np.any(period > 0))
-        self.H2 = self.dtype.type(H * H)
+        self.H2 = self.dtype.type(support * support)  # a neighbour is closer than H
+        self.H2_list = self.dtype.type(H * H)          # a candidate closer than H (1 + skin)
+        self.skin = float(skin)                        # run.neighbour_skin (0: a list a step)
+        self.reuse_limit2 = (REUSE_SHARE * skin * support) ** 2  # m^2: build anew at this displacement
         self.reach = int(reach)
         f = self.dtype.type
         r = [0 if self.ncell[d] == 1 and period[d] == 0 else self.reach for d in range(3)]
@@ -495,19 +576,32 @@ class Grid:
         self._keys = np.zeros(0, dtype=np.int64)
         self._perm = np.zeros(0, dtype=np.int64)
         self._scratch = {}
+        # with a skin: the candidate lists (n, capacity + 1) int32 and their lengths (n,) int32, the
+        # positions array they were built for (its identity: a replaced state is listed anew), the
+        # builds and reuses so far, and whether the next build sorts and lists by the state's saved
+        # reference positions (a resumed run)
+        self.cand = np.zeros((0, capacity + 1), dtype=np.int32)
+        self.cand_counts = np.zeros(0, dtype=np.int32)
+        self._listed_x = None
+        self.builds = 0
+        self.reuses = 0
+        self.from_reference = False
+        self._chunks = np.zeros(64, dtype=np.float64)
 
     def _ensure(self, n):
         if self._keys.shape[0] != n:
             self._keys = np.empty(n, dtype=np.int64)
             self._perm = np.empty(n, dtype=np.int64)
 
-    def sort(self, state):
+    def sort(self, state, by=None):
         """Reorder the rows of ``state`` by (cell, id): owned rows first, then ghost rows, each
         sorted. The carried fields (sphcore.state.CARRIED) and state.extra follow their rows; the derived
-        ones are left as they are (the step recomputes them after the sort)."""
+        ones are left as they are (the step recomputes them after the sort). ``by``: the (n, 3)
+        positions that give the cells (default state.x; a resumed skin run's reference positions)."""
         n = state.n
         self._ensure(n)
-        compute_cell_keys(state.x, state.n_owned, self.origin, self.inv_cell, self.ncell, self._keys)
+        compute_cell_keys(state.x if by is None else by, state.n_owned, self.origin, self.inv_cell, self.ncell,
+                          self._keys)
         counting_sort(self._keys, state.id, self.bin_start, self._perm)
         mixed = _cell_ranges(self.bin_start, self.ncells, self.cell_begin, self.cell_end)
         if mixed:
@@ -558,24 +652,74 @@ class Grid:
         """Neighbour list of rows 0..n_query-1 against all rows of x (which must be sorted); with
         ``rows`` (int64, a subset of them), of those rows only: the lists of the others are kept, also
         when the capacity grows (a peer builds its interior rows' lists, then its boundary rows')."""
-        if self.nbr.shape[0] < n_query:
-            self.nbr = np.empty((n_query, self.capacity + 1), dtype=np.int32)
-            self.counts = np.empty(n_query, dtype=np.int32)
-        while True:
+        def build(nbr, counts):
             args = (self.contiguous, self.cell_begin, self.cell_end, self.origin, self.cell, self.inv_cell,
-                    self.ncell, self.reach, self.period, self.H2, self.nbr, self.counts)
+                    self.ncell, self.reach, self.period, self.H2, nbr, counts)
             if rows is None:
                 _build_neighbours(int(self.periodic), x, n_query, *args)
-                most = int(self.counts[:n_query].max()) if n_query else 0
             else:
                 _build_neighbour_rows(int(self.periodic), x, rows, *args)
-                most = int(self.counts[rows].max()) if rows.shape[0] else 0
-            if most <= self.capacity:
+        return self._fill("nbr", "counts", n_query, rows, build)
+
+    def _fill(self, lists, lengths, n_query, rows, build):
+        """Run ``build(lists, lengths)`` into the arrays named ``lists`` (n, capacity + 1) and ``lengths``
+        (n,) of this grid, growing their capacity and building again until every list fits; returns the
+        longest list. The lists of rows outside ``rows`` (None: rows 0..n_query-1) are kept, also when
+        the capacity grows."""
+        capacity = getattr(self, lists).shape[1] - 1
+        if getattr(self, lists).shape[0] < n_query:
+            setattr(self, lists, np.empty((n_query, capacity + 1), dtype=np.int32))
+            setattr(self, lengths, np.empty(n_query, dtype=np.int32))
+        while True:
+            build(getattr(self, lists), getattr(self, lengths))
+            counted = getattr(self, lengths)
+            if rows is None:
+                most = int(counted[:n_query].max()) if n_query else 0
+            else:
+                most = int(counted[rows].max()) if rows.shape[0] else 0
+            if most <= capacity:
+                if lists == "nbr":
+                    self.capacity = capacity
                 return most
-            old = self.nbr
-            self.capacity = int(most * 1.25) + 8
-            self.nbr = np.empty((max(n_query, old.shape[0]), self.capacity + 1), dtype=np.int32)
-            self.nbr[:old.shape[0], :old.shape[1] - 1] = old[:, :-1]  # the lists already built stay
+            old = getattr(self, lists)
+            capacity = int(most * 1.25) + 8
+            setattr(self, lists, np.empty((max(n_query, old.shape[0]), capacity + 1), dtype=np.int32))
+            getattr(self, lists)[:old.shape[0], :old.shape[1] - 1] = old[:, :-1]  # the lists already built stay
+
+    # -- a skin's Verlet lists (one process) ----------------------------------------------------
+    def listed(self, state) -> bool:
+        """Whether the candidate lists were built for this state's rows (the same positions array,
+        the same rows: a state replaced by a resume, an inlet or an outlet is listed anew)."""
+        return (self._listed_x is state.x and state.n == state.n_owned
+                and self.cand_counts.shape[0] >= state.n_owned)
+
+    def reusable(self, state) -> bool:
+        """Whether this step may filter the candidate lists instead of building: they are this
+        state's, and no particle has moved REUSE_SHARE of the skin since they were built."""
+        if not self.skin or not self.listed(state):
+            return False
+        n = state.n_owned
+        moved2 = _max_displacement2(int(self.periodic), state.x, state.extra["x_ref"], n, self.period, self._chunks)
+        return moved2 < self.reuse_limit2
+
+    def build_candidates(self, state):
+        """The candidate lists of the (sorted) owned rows at their reference positions
+        (state.extra["x_ref"]), and this state as the one they were built for."""
+        def build(cand, cand_counts):
+            _build_neighbours(int(self.periodic), state.extra["x_ref"], state.n_owned, self.contiguous,
+                              self.cell_begin, self.cell_end, self.origin, self.cell, self.inv_cell, self.ncell,
+                              self.reach, self.period, self.H2_list, cand, cand_counts)
+        self._fill("cand", "cand_counts", state.n_owned, None, build)
+        self._listed_x = state.x
+        self.builds += 1
+
+    def filter_neighbours(self, x, n_query):
+        """The neighbour lists of rows 0..n_query-1 from their candidates (_filter_neighbours);
+        returns the longest."""
+        def build(nbr, counts):
+            _filter_neighbours(int(self.periodic), x, n_query, self.cand, self.cand_counts, self.period, self.H2,
+                               nbr, counts)
+        return self._fill("nbr", "counts", n_query, None, build)
 
     def cells_of(self, x):
         """(n, 3) int64 cell coordinates of positions x (n, 3)."""

@@ -42,7 +42,7 @@ def make_grid(scene, walls, H, dtype):
         if not periodic[d] and d < scene.dim:
             lo[d] -= H
             hi[d] += H
-    return grid_mod.Grid(lo, hi, H, periodic, dtype, reach=grid_reach(scene))
+    return grid_mod.Grid(lo, hi, H, periodic, dtype, reach=grid_reach(scene), skin=scene.run.neighbour_skin)
 
 
 class Model:
@@ -122,7 +122,8 @@ class Model:
         # per-particle arrays that follow their particle (ParticleState.extra): the solver's (DFSPH's
         # kappa = p / rho^2, the next step's warm start); the carried density (physics/continuity.py).
         # 0 means a cold start: kappa = 0, density = rho0.
-        self.extra_names = SOLVERS[sph.solver].carried + (("density",) if self.continuity else ())
+        self.extra_names = (SOLVERS[sph.solver].carried + (("density",) if self.continuity else ())
+                            + (("x_ref",) if scene.run.neighbour_skin else ()))
         # the compile-time choices of this model's stages (stages.CHOICES); ``divergence`` is per call
         self.choices = {"kernel": int(self.kernel), "eos": int(self.eos), "viscosity": int(self.viscosity),
                         "pressure_gradient": int(self.pressure_gradient),

@@ -336,6 +336,11 @@ class Run:
                                      "walk (whose every pass would visit 125 cells instead of 27). Same neighbours; "
                                      "the order of the sums, so the rounding, differs between 1 and 2",
                                   choices=(0, 1, 2), control=AT_START)
+    neighbour_skin: float = spec(0.0, "Verlet lists: build the lists out to H (1 + skin) and reuse them, filtered to H, "
+                                      "until some particle has moved 0.45 skin H (0 = build every step). The same "
+                                      "neighbours each step, summed in the order of the last build, so the last bits "
+                                      "differ from skin 0; one process with lists on the CPU (docs/BENCHMARKS.md)",
+                                 range=(0.0, 1.0), control=AT_START)
     log_every: int = spec(0, "steps between progress log lines when not on a terminal (0 = every 5 % of the run)",
                           range=(0, 10**9), control=AT_START)
     max_density_ratio: float = spec(3.0, "stop with a diagnostic if some rho/rho0 exceeds this",
@@ -943,6 +948,13 @@ def _check_combinations(s: Scene, files: bool = True, backend: str = "cpu") -> S
     changes, are not checked again (the running run itself holds memory the estimate would count as
     missing)."""
     dom = s.domain
+    if s.run.neighbour_skin:
+        if s.run.neighbours != "lists":
+            raise SceneError(f"run.neighbour_skin = {s.run.neighbour_skin:g}: reused lists need run.neighbours = "
+                             f"'lists', not {s.run.neighbours!r} (or set run.neighbour_skin = 0)")
+        if backend != "cpu":
+            raise SceneError(f"run.neighbour_skin = {s.run.neighbour_skin:g}: reused lists are built on the CPU "
+                             f"backend only, not {backend!r} (set run.neighbour_skin = 0)")
     if s.dim == 2:
         if dom.container == "cylinder":
             raise SceneError("domain.container = 'cylinder': not available in 2D scenes (use box or sphere)")
@@ -1444,7 +1456,17 @@ def stores_pair_gradients(s: Scene, backend: str = "cpu") -> bool:
 def bytes_per_particle(s: Scene, backend: str = "cpu") -> int:
     """The host memory estimate per particle of one process (HOST_BYTES_PER_PARTICLE; with DFSPH's
     stored pair gradients when the scene has them)."""
-    return HOST_BYTES_PER_PARTICLE[backend] + (PAIR_GRADIENT_BYTES if stores_pair_gradients(s, backend) else 0)
+    return (HOST_BYTES_PER_PARTICLE[backend] + (PAIR_GRADIENT_BYTES if stores_pair_gradients(s, backend) else 0)
+            + skin_bytes(s))
+
+
+def skin_bytes(s: Scene) -> int:
+    """Per particle, what reused lists add (run.neighbour_skin): the candidate lists (int32, the
+    default list capacity of 64 grown by (1 + skin)^dim, plus a spare column) and the reference
+    positions (3 x 8 B at most)."""
+    if not s.run.neighbour_skin:
+        return 0
+    return int(4 * (64 * (1.0 + s.run.neighbour_skin) ** s.dim + 1)) + 24
 
 
 def block_estimate(block: Block, dim: int, dx: float) -> float:

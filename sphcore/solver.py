@@ -25,7 +25,7 @@ from sphcore.physics import traction
 from sphcore.probes import Probes
 from sphcore.scene import Scene, pressure_scale
 from sphcore.solvers import SOLVERS
-from sphcore.state import ParticleState
+from sphcore.state import EXTRA_ROW_SHAPE, ParticleState
 from sphcore.timers import StageTimers
 from sphcore.timestep import LIMITS, choose_dt
 
@@ -190,7 +190,7 @@ class Simulation:
     def _add_extra(self, state: ParticleState):
         for name in self.extra_names:
             if name not in state.extra:
-                state.extra[name] = np.zeros(state.x.shape[0], dtype=self.dtype)
+                state.extra[name] = np.zeros((state.x.shape[0],) + EXTRA_ROW_SHAPE.get(name, ()), dtype=self.dtype)
 
     def set_parameter(self, key: str, value):
         """Change the value of scene key ``key`` (one that may change during a run, scene.LIVE) from
@@ -301,6 +301,9 @@ class Simulation:
         messages from other peers (never for a single process, whose halo is NULL_HALO), so the same
         ordered step runs in one process, in a peer process, or in an in-process cluster. What each
         stage reads and writes is declared in stages.py."""
+        if self.grid.skin and halo is not NULL_HALO:  # a peer's ghost rows change every step
+            raise ValueError(f"run.neighbour_skin = {self.grid.skin:g}: reused lists work in one process only; "
+                             "set run.neighbour_skin = 0 for peers")
         f = self.dtype.type
         prm = self._ramped_params()
         self._move_walls(self.t)                                   # moving walls (motion.py) to t

@@ -33,6 +33,9 @@ kappa      (n,)      float    m^5/(kg s^2)   DFSPH's kappa = p / rho^2, the next
                                              start (physics/dfsph.py)
 density    (n,)      float    kg/m^3         sph.density = "continuity": rho integrated in time by
                                              d rho / dt, not recomputed (physics/continuity.py)
+x_ref      (n, 3)    float    m              run.neighbour_skin > 0: the position at the last list
+                                             build, which the filtered lists hold until a particle
+                                             moves part of the skin from it (grid.py)
 =========  ========  =======  =============  ============================================================
 
 Every place that copies, moves or saves particles (the grid's reorder, the halo's migrants and
@@ -50,6 +53,7 @@ DERIVED = ("a", "rho", "p")       # recomputed every step from the carried field
 FIELDS = CARRIED + DERIVED        # every named per-particle field
 ROW_SHAPE = {"id": (), "x": (3,), "v": (3,), "m": (), "a": (3,), "rho": (), "p": ()}  # one row of each
 EXTRA_PREFIX = "extra_"           # state.extra[name] travels (wire, checkpoints) as "extra_<name>"
+EXTRA_ROW_SHAPE = {"x_ref": (3,)}  # one row of an extra array that is not (n,)
 
 
 def is_carried(name: str) -> bool:

@@ -38,6 +38,7 @@ class CpuStages(Engine):
         self._where = None
         self._split = None
         self.all_rows = np.empty(0, dtype=np.int64)
+        self._identity = np.empty(0, dtype=np.int64)
         self._grad_w = np.empty((3, 0, 0), dtype=self.dtype)
         super().__init__(sim)
 
@@ -148,16 +149,39 @@ class CpuStages(Engine):
         self.sim.state = new
 
     def bin(self):
-        """x -> (cell, id) order, and the neighbour lists unless the passes walk the cells."""
-        self.sort()
-        self.neighbours()
+        """x -> (cell, id) order, and the neighbour lists unless the passes walk the cells. With a skin
+        (grid.py), the lists are filtered from the candidates while they hold; a resumed run first
+        sorts and lists its rows by their saved reference positions, as the continuous run had them."""
+        grid, s = self.sim.grid, self.sim._state
+        if not grid.skin:
+            self.sort()
+            self.neighbours()
+            return
+        if grid.from_reference and not grid.listed(s):
+            self.sort(by=s.extra["x_ref"])
+            grid.build_candidates(s)
+        grid.from_reference = False
+        if grid.reusable(s):
+            grid.reuses += 1
+            grid.last_permutation = self._unmoved(s.n)
+        else:
+            self.sort()
+            s.extra["x_ref"][:] = s.x
+            grid.build_candidates(s)
+        grid.filter_neighbours(s.x, s.n_owned)
+
+    def _unmoved(self, n):
+        """The identity permutation of n rows (a step that filters its lists sorts nothing)."""
+        if self._identity.shape[0] != n:
+            self._identity = np.arange(n, dtype=np.int64)
+        return self._identity
 
     sorts_ghosts_apart = True
 
-    def sort(self):
+    def sort(self, by=None):
         self._where = None  # the new sort's inverse permutation is formed when a halo first needs it
         self._split = None  # and the interior and boundary rows when a halo first asks for them
-        self.sim.grid.sort(self.sim._state)
+        self.sim.grid.sort(self.sim._state, by)
 
     def sort_ghosts(self):
         # The owned rows stay where they are, so their lists, density and interior/boundary split
