@@ -304,7 +304,7 @@ def _peer_cases(scene_path: Path, dx: float, args) -> list[dict]:
     cores = numba.config.NUMBA_NUM_THREADS
     for precision in args.precisions:
         for threads in (args.threads if args.backend == "cpu" else args.threads[:1]):
-            for peers in args.peers:
+            for peers, skin in [(p, s) for s in args.skins for p in args.peers]:
                 if peers * threads > cores:
                     continue
                 with tempfile.TemporaryDirectory() as tmp:
@@ -312,7 +312,7 @@ def _peer_cases(scene_path: Path, dx: float, args) -> list[dict]:
                            *(["--threads", str(threads)] if args.backend == "cpu" else []),
                            "--steps", str(args.steps + 1), "--precision", precision,
                            "--out", tmp, "--quiet", "--no-viewer", "--backend", args.backend,
-                           "--set", "decomposition.balance_every=50"]
+                           "--set", "decomposition.balance_every=50", "--set", f"run.neighbour_skin={skin!r}"]
                     for kv in _fixed(scene_path, dx):
                         cmd += ["--set", kv]
                     done = subprocess.run(cmd, capture_output=True, text=True)
@@ -325,12 +325,15 @@ def _peer_cases(scene_path: Path, dx: float, args) -> list[dict]:
                      "wall_s": s["loop"]["wall_s"], "particle_steps_per_s": s["particle_steps_per_s"],
                      "neighbours": s["neighbours"]["mean"], "bytes_sent_per_step": s["bytes_sent"] / s["steps"],
                      "bytes_over_minimum": s.get("bytes_over_minimum"), "imbalance": s.get("imbalance"),
-                     "wait_s": [p["wait_s_total"] for p in s.get("per_peer", [])]}
+                     "wait_s": [p["wait_s_total"] for p in s.get("per_peer", [])], "neighbour_skin": skin,
+                     "list_builds": s["neighbours"].get("list_builds", s["steps"])}
                 out.append(r)
                 extra = ""
                 if peers > 1:
                     extra = (f"  {r['bytes_sent_per_step'] / 1e3:.1f} kB/step ({r['bytes_over_minimum']:.3f}x the "
                              f"halo minimum), waiting {', '.join(f'{w:.2f}' for w in r['wait_s'])} s")
+                if skin:
+                    extra += f"  skin={skin:g} ({r['list_builds']} list builds)"
                 print(f"{peers:>3} peer(s) x {threads} thread(s) {precision} N={r['particles']:>8} "
                       f"{r['particle_steps_per_s']:10.3e} particle-steps/s{extra}", flush=True)
     return out
@@ -345,9 +348,11 @@ def _print_peer_ratios(results: list[dict]):
         if r["peers"] == 1:
             continue
         base = [b for b in runs if b["peers"] == 1 and b["threads"] == r["threads"]
-                and b["precision"] == r["precision"] and abs(b["dx"] - r["dx"]) < 1e-12]
+                and b["precision"] == r["precision"] and abs(b["dx"] - r["dx"]) < 1e-12
+                and b.get("neighbour_skin", 0.0) == r.get("neighbour_skin", 0.0)]
         if base:
-            print(f"  {r['peers']} peers x {r['threads']} threads {r['precision']} N={r['particles']}: "
+            skin = f" skin={r['neighbour_skin']:g}" if r.get("neighbour_skin") else ""
+            print(f"  {r['peers']} peers x {r['threads']} threads {r['precision']}{skin} N={r['particles']}: "
                   f"{r['particle_steps_per_s'] / base[0]['particle_steps_per_s']:.2f}x")
 
 
@@ -418,8 +423,9 @@ def _print_walk_ratios(results: list[dict]):
 def _print_skin_ratios(results: list[dict]):
     """Reused lists / a list a step, the same case side by side (sph bench --skins 0 0.1)."""
     same = ("precision", "threads", "backend", "particles", "neighbour_search")
-    pairs = [(s, z) for s in results if s.get("neighbour_skin") for z in results
-             if z.get("code") == "sphfluid" and z.get("neighbour_skin") == 0.0 and all(z.get(k) == s.get(k) for k in same)]
+    one = [r for r in results if r.get("code") == "sphfluid" and "peers" not in r]
+    pairs = [(s, z) for s in one if s.get("neighbour_skin") for z in one
+             if z.get("neighbour_skin") == 0.0 and all(z.get(k) == s.get(k) for k in same)]
     if pairs:
         print("\nreused lists (run.neighbour_skin) / a list a step (same case, same run):")
     for s, z in pairs:

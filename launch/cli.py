@@ -717,11 +717,10 @@ def _check_bench(args):
     if args.after and (args.external or args.peers != [1] or args.until is not None or args.network):
         raise UsageError(f"--after {args.after}: the other codes and the peer runs start from rest, so --after "
                          "does not combine with --external, --peers, --until or --network")
-    if any(args.skins) and (args.network or args.backend != "cpu" or args.peers != [1] or args.until is not None
+    if any(args.skins) and (args.network or args.backend != "cpu" or args.until is not None
                             or "walk" in args.neighbours):
-        raise UsageError(f"--skins {' '.join(f'{s:g}' for s in args.skins)}: reused lists are timed in one CPU "
-                         "process with lists (not with --network, --backend cuda, --peers, --until or "
-                         "--neighbours walk)")
+        raise UsageError(f"--skins {' '.join(f'{s:g}' for s in args.skins)}: reused lists are timed on the CPU "
+                         "backend with lists (not with --network, --backend cuda, --until or --neighbours walk)")
     if args.until is not None:
         if args.network or args.backend != "cpu" or args.peers != [1] or args.neighbours != ["lists"]:
             raise UsageError("--until times one CPU process with neighbour lists: it does not combine with "
@@ -739,9 +738,6 @@ def _check_peers(scene, n_peers: int):
     """The scene's decomposition fits n_peers (checked before any process starts)."""
     from nodes.peer import decomposition_for
     from sphcore.solver import Simulation
-    if scene.run.neighbour_skin:  # every caller starts peer processes (--peers N > 1, --hosts)
-        raise UsageError(f"{n_peers} peer(s): run.neighbour_skin = {scene.run.neighbour_skin:g} reuses lists in one "
-                         "process only; peers build theirs every step (set run.neighbour_skin = 0)")
     if n_peers == 1 and not any(scene.decomposition.dims):
         return
     grid = Simulation.grid_for(scene)

@@ -437,7 +437,9 @@ def peer_summary(peers: list[dict], base: dict, world: int, itemsize: int) -> di
         "leaks": int(sum(p["leaks"] for p in peers)),
         "kinetic_energy": float(sum(p["kinetic_energy"] for p in peers)),
         "neighbours": {"mean": total_neighbours / base["particles"], "max": max(p["neighbours_max"] for p in peers),
-                       "max_over_run": max(p["neighbours_max_over_run"] for p in peers)},
+                       "max_over_run": max(p["neighbours_max_over_run"] for p in peers),
+                       **{k: base["neighbours"][k] for k in ("skin", "list_builds", "list_reuses")  # every peer's
+                          if k in base["neighbours"]}},
         "bytes_sent": int(sum(bytes_per_phase.values())),
         "bytes_sent_per_phase": bytes_per_phase,
         "halo_bytes_minimum": minimum,

@@ -483,6 +483,34 @@ def _filter_neighbours(periodic, x, n_query, cand, cand_counts, period, H2, nbr,
 
 @literal_dispatch(1)
 @njit(cache=True, parallel=True)
+def _filter_neighbour_rows(periodic, x, rows, cand, cand_counts, period, H2, nbr, counts):
+    """_filter_neighbours for the rows ``rows`` only (a peer's interior rows, then its boundary rows)."""
+    literally(periodic)
+    cap = nbr.shape[1] - 1
+    for k in prange(rows.shape[0]):
+        i = rows[k]
+        xi, yi, zi = x[i, 0], x[i, 1], x[i, 2]
+        count = 0
+        for c in range(cand_counts[i]):
+            j = cand[i, c]
+            dx = xi - x[j, 0]
+            dy = yi - x[j, 1]
+            dz = zi - x[j, 2]
+            if periodic:
+                if period[0] > 0.0:
+                    dx = minimum_image(dx, period[0])
+                if period[1] > 0.0:
+                    dy = minimum_image(dy, period[1])
+                if period[2] > 0.0:
+                    dz = minimum_image(dz, period[2])
+            inside = dx * dx + dy * dy + dz * dz < H2
+            nbr[i, min(count, cap)] = j
+            count += 1 if inside else 0
+        counts[i] = count
+
+
+@literal_dispatch(1)
+@njit(cache=True, parallel=True)
 def _max_displacement2(periodic, x, x_ref, n, period, chunks):
     """The largest |x_i - x_ref_i|^2 over rows 0..n-1 (minimum image on periodic axes), as float64;
     ``chunks`` (k,) float64 scratch, one maximum per chunk of rows."""
@@ -583,6 +611,8 @@ class Grid:
         self.cand = np.zeros((0, capacity + 1), dtype=np.int32)
         self.cand_counts = np.zeros(0, dtype=np.int32)
         self._listed_x = None
+        self._listed_rows = (0, 0)
+        self.reusing = False  # this step filters the candidates it holds (Simulation._reuse_lists)
         self.builds = 0
         self.reuses = 0
         self.from_reference = False
@@ -613,15 +643,16 @@ class Grid:
         for name, arr in state.extra.items():
             state.extra[name] = self._gather("extra:" + name, arr)
 
-    def sort_ghosts(self, state):
+    def sort_ghosts(self, state, by=None):
         """After ``sort`` of the owned rows alone and the ghost rows' append: the ghost rows in (cell,
         id) order after the owned rows, which stay where they are (the order, bins and cell ranges
-        one ``sort`` of every row gives, without sorting the owned rows again)."""
+        one ``sort`` of every row gives, without sorting the owned rows again). ``by`` as in sort."""
         n, n_owned = state.n, state.n_owned
         if self.bin_start[self.ncells] != n_owned or self.bin_start[2 * self.ncells] != n_owned:
             raise RuntimeError("sort_ghosts: the owned rows were not sorted alone first")
         self._ensure(n)
-        compute_cell_keys(state.x, n_owned, self.origin, self.inv_cell, self.ncell, self._keys)
+        compute_cell_keys(state.x if by is None else by, n_owned, self.origin, self.inv_cell, self.ncell,
+                          self._keys)
         _scatter_ghosts(self._keys, n_owned, self.ncells, self.bin_start, self._perm)
         _sort_bins_by_id(n_owned, self._keys, self.bin_start, self._perm, state.id)
         mixed = _ghost_cell_ranges(self._keys, n_owned, self.ncells, self.bin_start, self._perm, self.cell_begin,
@@ -686,40 +717,49 @@ class Grid:
             setattr(self, lists, np.empty((max(n_query, old.shape[0]), capacity + 1), dtype=np.int32))
             getattr(self, lists)[:old.shape[0], :old.shape[1] - 1] = old[:, :-1]  # the lists already built stay
 
-    # -- a skin's Verlet lists (one process) ----------------------------------------------------
+    # -- a skin's Verlet lists ----------------------------------------------------------------
     def listed(self, state) -> bool:
-        """Whether the candidate lists were built for this state's rows (the same positions array,
-        the same rows: a state replaced by a resume, an inlet or an outlet is listed anew)."""
-        return (self._listed_x is state.x and state.n == state.n_owned
-                and self.cand_counts.shape[0] >= state.n_owned)
+        """Whether the candidate lists were built for this state's rows (the same positions array and
+        row counts: a state replaced by a resume, an inlet, an outlet or a rebalance is listed anew)."""
+        return self._listed_x is state.x and self._listed_rows == (state.n, state.n_owned)
 
-    def reusable(self, state) -> bool:
-        """Whether this step may filter the candidate lists instead of building: they are this
-        state's, and no particle has moved REUSE_SHARE of the skin since they were built."""
-        if not self.skin or not self.listed(state):
-            return False
-        n = state.n_owned
-        moved2 = _max_displacement2(int(self.periodic), state.x, state.extra["x_ref"], n, self.period, self._chunks)
-        return moved2 < self.reuse_limit2
+    def displacement2(self, state) -> float:
+        """m^2: the largest squared distance of an owned row from its reference position."""
+        return _max_displacement2(int(self.periodic), state.x, state.extra["x_ref"], state.n_owned, self.period,
+                                  self._chunks)
 
-    def build_candidates(self, state):
-        """The candidate lists of the (sorted) owned rows at their reference positions
-        (state.extra["x_ref"]), and this state as the one they were built for."""
+    def build_candidates(self, positions, n_query, rows=None):
+        """The candidate lists (every row within H (1 + skin)) of rows 0..n_query-1, or of ``rows``,
+        at ``positions`` (the reference positions, by which the rows are sorted)."""
         def build(cand, cand_counts):
-            _build_neighbours(int(self.periodic), state.extra["x_ref"], state.n_owned, self.contiguous,
-                              self.cell_begin, self.cell_end, self.origin, self.cell, self.inv_cell, self.ncell,
-                              self.reach, self.period, self.H2_list, cand, cand_counts)
-        self._fill("cand", "cand_counts", state.n_owned, None, build)
-        self._listed_x = state.x
-        self.builds += 1
+            args = (self.contiguous, self.cell_begin, self.cell_end, self.origin, self.cell, self.inv_cell,
+                    self.ncell, self.reach, self.period, self.H2_list, cand, cand_counts)
+            if rows is None:
+                _build_neighbours(int(self.periodic), positions, n_query, *args)
+            else:
+                _build_neighbour_rows(int(self.periodic), positions, rows, *args)
+        self._fill("cand", "cand_counts", n_query, rows, build)
 
-    def filter_neighbours(self, x, n_query):
-        """The neighbour lists of rows 0..n_query-1 from their candidates (_filter_neighbours);
-        returns the longest."""
+    def filter_neighbours(self, x, n_query, rows=None):
+        """The neighbour lists of rows 0..n_query-1, or of ``rows``, from their candidates
+        (_filter_neighbours); returns the longest."""
         def build(nbr, counts):
-            _filter_neighbours(int(self.periodic), x, n_query, self.cand, self.cand_counts, self.period, self.H2,
-                               nbr, counts)
-        return self._fill("nbr", "counts", n_query, None, build)
+            if rows is None:
+                _filter_neighbours(int(self.periodic), x, n_query, self.cand, self.cand_counts, self.period,
+                                   self.H2, nbr, counts)
+            else:
+                _filter_neighbour_rows(int(self.periodic), x, rows, self.cand, self.cand_counts, self.period,
+                                       self.H2, nbr, counts)
+        return self._fill("nbr", "counts", n_query, rows, build)
+
+    def lists_done(self, state):
+        """The step's lists are complete: remember the state they belong to, count a build or a reuse."""
+        self._listed_x = state.x
+        self._listed_rows = (state.n, state.n_owned)
+        if self.reusing:
+            self.reuses += 1
+        else:
+            self.builds += 1
 
     def cells_of(self, x):
         """(n, 3) int64 cell coordinates of positions x (n, 3)."""

@@ -94,6 +94,8 @@ def has_repeats(ids: np.ndarray) -> bool:
 
 
 POSITIONS = "positions"  # exchange 1b's phase: the ghost rows' id, x, v, m (and carried extras)
+MOVED = "moved"          # exchange 1 of a step that reuses its lists (run.neighbour_skin): the same ghost
+                         # rows' x, v, m (and the carried extras but the reference positions), no migrants
 
 
 class NullHalo:
@@ -104,6 +106,14 @@ class NullHalo:
 
     def exchange_positions(self, sim):
         return
+        yield
+
+    def exchange_moved(self, sim):
+        return
+        yield
+
+    def reduce_max_value(self, sim, phase, value: float):
+        return value
         yield
 
     def send_ghosts(self, sim, phase, names, kind=None):
@@ -215,7 +225,8 @@ class PeerHalo:
                 raise Reject("mass", f"{what}: a mass m <= 0")
             if n and (not sim.ids_valid(ids) or has_repeats(ids)):
                 raise Reject("ids", f"{what}: ids this run's particles cannot have ({sim.ids_text()}), or repeated")
-            cells = sim.grid.cells_of(msg["x"])
+            # with a skin, the rows are placed by their reference positions (Simulation._reuse_lists)
+            cells = sim.grid.cells_of(msg[EXTRA_PREFIX + "x_ref"] if sim.grid.skin else msg["x"])
             if not placed(cells).all():
                 raise Reject("owner", f"{what}: particles outside the cells the protocol sends them from")
             cells_out["cells"] = cells
@@ -340,6 +351,40 @@ class PeerHalo:
         ghosts = yield from self._receive_positions(sim, first, empty)
         engine.rebuild(gone, migrants, ghosts)
 
+    def exchange_moved(self, sim):
+        """Exchange 1 of a step that reuses its lists (every peer agreed, Simulation._reuse_lists): no
+        particle changes owner; the neighbours' ghost rows of the last build get their rows' new x, v,
+        m and carried extras (not their ids or reference positions, which stay), in the order of that
+        build, overlapped like exchange 2 (``receive_ghosts``; a backend that does not sort its ghosts
+        apart waits here)."""
+        step = sim.step_index
+        if self._pending:
+            raise RuntimeError(f"peer {self.rank}, step {step}: ghost rows of {sorted(self._pending)} were sent and "
+                               "never received")
+        kept = (EXTRA_PREFIX + "x_ref", "id")
+        self.send_ghosts(sim, MOVED, tuple(k for k in sim.engine.carried_names() if k not in kept), POSITIONS)
+        if not (self.overlap and sim.engine.sorts_ghosts_apart):
+            yield from self.receive_ghosts(sim, MOVED)
+
+    def _moved_check(self, sim, q, check, lo, hi):
+        """``check`` of exchange 1 on a step that reuses its lists, and every ghost within the skin's
+        reach of its reference position (as its owner found its own rows) and of positive mass."""
+        reference = sim.engine.rows_of((EXTRA_PREFIX + "x_ref",), np.arange(lo, hi))[EXTRA_PREFIX + "x_ref"]
+
+        def moved(msg):
+            check(msg)
+            d = (msg["x"] - reference).astype(np.float64)
+            period = sim.grid.period.astype(np.float64)
+            wrap = period > 0
+            d[:, wrap] -= period[wrap] * np.round(d[:, wrap] / period[wrap])
+            if len(d) and float((d * d).sum(axis=1).max()) >= sim.grid.reuse_limit2 * (1.0 + 1e-6):
+                raise Reject("owner", f"{MOVED} from peer {q}: a ghost moved farther from where the lists were "
+                                      "built than the skin allows")
+            if not (msg["m"] > 0).all():
+                raise Reject("mass", f"{MOVED} from peer {q}: a mass m <= 0")
+
+        return moved
+
     def _receive_positions(self, sim, first, empty):
         """Generator: the neighbours' rows of exchange 1b (their id, x, v, m... for our ghost rows,
         numbered from ``first`` in the order of the neighbours), joined in that order."""
@@ -387,7 +432,10 @@ class PeerHalo:
         layout = {k: engine.row_layout(k) for k in names}
         for q in self.neighbours:
             lo, hi = self._ghost_rows[q]
-            msg = yield from self.transport.recv(q, (step, phase), self._ghost_rows_check(q, phase, layout, lo, hi))
+            check = self._ghost_rows_check(q, phase, layout, lo, hi)
+            if phase == MOVED:
+                check = self._moved_check(sim, q, check, lo, hi)
+            msg = yield from self.transport.recv(q, (step, phase), check)
             engine.set_rows({k: msg[k] for k in names}, np.arange(lo, hi))
 
     def split_rows(self, sim, phase):
@@ -420,6 +468,21 @@ class PeerHalo:
                 q, (step, phase), lambda m, q=q: expect_arrays(m, expected, f"{phase} from peer {q}"))
             total += int(msg["sum"][0])
         return total
+
+    def reduce_max_value(self, sim, phase, value: float):
+        """Global max of one finite float64 (every peer gets the same): whether every peer's lists
+        still hold (Simulation._reuse_lists)."""
+        step = sim.step_index
+        message = {"max": np.array([value], dtype=np.float64)}
+        for q in self.others:
+            self._send(q, (step, phase), message, "reduce")
+        result = float(value)
+        expected = {"max": ((1,), np.float64)}
+        for q in self.others:
+            msg = yield from self.transport.recv(
+                q, (step, phase), lambda m, q=q: expect_arrays(m, expected, f"{phase} from peer {q}"))
+            result = max(result, float(msg["max"][0]))
+        return result
 
     def reduce_sums(self, sim, phase, values, step=None):
         """Global sums of an int64 vector (exact and order independent, like ``reduce_sum``): the

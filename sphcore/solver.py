@@ -15,7 +15,7 @@ import numpy as np
 from sphcore import stages as st
 from sphcore.backends import cpu
 from sphcore.choices import Integrator
-from sphcore.halo import NULL_HALO, POSITIONS
+from sphcore.halo import MOVED, NULL_HALO, POSITIONS
 from sphcore.health import Health
 from sphcore.initial import check_full, generate_particles
 from sphcore.model import Model
@@ -301,9 +301,6 @@ class Simulation:
         messages from other peers (never for a single process, whose halo is NULL_HALO), so the same
         ordered step runs in one process, in a peer process, or in an in-process cluster. What each
         stage reads and writes is declared in stages.py."""
-        if self.grid.skin and halo is not NULL_HALO:  # a peer's ghost rows change every step
-            raise ValueError(f"run.neighbour_skin = {self.grid.skin:g}: reused lists work in one process only; "
-                             "set run.neighbour_skin = 0 for peers")
         f = self.dtype.type
         prm = self._ramped_params()
         self._move_walls(self.t)                                   # moving walls (motion.py) to t
@@ -420,10 +417,40 @@ class Simulation:
         if self.model.walls.at(t):
             self.engine.walls_moved()
 
+    def _reuse_lists(self, halo):
+        """Generator: whether this step filters the lists it holds (run.neighbour_skin; grid.py) instead
+        of building them, decided alike on every peer from the global largest displacement of a row
+        from its reference position. A build comes when some row moved REUSE_SHARE of the skin, when
+        some peer's rows were replaced (an inlet, an outlet, a resume) and at every rebalance step (the
+        blocks move: a single process builds there too, so that N peers keep one process's bits). At a
+        build, the rows' reference positions become their positions, unless a resumed run whose
+        particles have not moved that far rebuilds the continuous run's lists from the saved ones."""
+        grid, e = self.grid, self.engine
+        if not grid.skin:
+            return False
+        resumed = grid.from_reference
+        grid.from_reference = False
+        moved2 = e.displacement2() if (resumed or grid.listed(self._state)) else math.inf
+        every = self.scene.decomposition.balance_every
+        if every and self.step_index > 0 and self.step_index % every == 0:
+            moved2 = math.inf
+        moved2 = yield from halo.reduce_max_value(self, "lists", min(moved2, 1e300) if moved2 == moved2 else 1e300)
+        grid.reusing = moved2 < grid.reuse_limit2
+        if grid.reusing and not resumed:
+            return True
+        if not grid.reusing:
+            e.set_reference()                                      # x_ref = x: the rows are placed by x
+        grid.reusing = False                                       # (a resumed run: by the saved x_ref)
+        return False
+
     def _fields(self, halo, prm, commit):
         """Exchange 1, the neighbour lists, density and pressure (DFSPH: its factors and the
         reference density), exchange 2: everything the accelerations need."""
-        yield from halo.exchange_positions(self)                   # migrants; ghosts' id, x, v, m (exchange 1)
+        reuse = yield from self._reuse_lists(halo)                # a skin: the lists still hold on every peer
+        if reuse:
+            yield from halo.exchange_moved(self)                   # ghosts' x, v, m (exchange 1, no migrants)
+        else:
+            yield from halo.exchange_positions(self)               # migrants; ghosts' id, x, v, m (exchange 1)
 
         def density(rows):                                         # x, m (v) -> rho, p, fill; continuity:
             return self._run(st.DENSITY, prm=prm, dt_prev=self.dtype.type(self.dt_prev), commit=bool(commit),
@@ -438,10 +465,13 @@ class Simulation:
             with self.timers("grid"):                              # and lists its owned rows meanwhile
                 self.engine.sort()                                 # x (owned)        -> order
             counts = yield from self._overlapped(halo, POSITIONS, listed_density, after=self._sort_ghosts)
+        elif reuse:                                                # the rows stay; the lists are filtered
+            counts = yield from self._overlapped(halo, MOVED, listed_density)
         else:
             with self.timers("grid"):
                 self._neighbours()                                 # x                -> order, neighbour lists
             counts = [density(None)]
+        self.engine.lists_done()
         self.neighbours_sum = sum(int(found) for found, _ in counts)
         self.neighbours_max = max(int(most) for _, most in counts)
         if self.open.outlets:

@@ -1,12 +1,15 @@
 """run.neighbour_skin: Verlet lists built out to H (1 + skin), filtered to H every step and built
 anew once a particle has moved part of the skin (sphcore/grid.py)."""
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from launch.cli import main
+from nodes.cluster import InProcessCluster
 from sphcore.scene import SceneError, bytes_per_particle, load_scene
 from sphcore.solver import Simulation
 
@@ -120,17 +123,92 @@ def test_a_skin_where_it_cannot_work_is_refused(sets, backend, fragment):
     assert fragment in str(e.value)
 
 
-@pytest.mark.fast
-def test_a_skin_with_peers_is_refused_before_any_process_starts(tmp_path, capsys):
-    code = main(["run", DAM_2D, "--set", "run.neighbour_skin=0.1", "--peers", "2", "--no-viewer", "--quiet",
-                 "--steps", "2", "--out", str(tmp_path / "out")])
-    err = capsys.readouterr().err
-    assert code == 2 and "Traceback" not in err
-    assert "run.neighbour_skin = 0.1 reuses lists in one process only" in err
-    assert not (tmp_path / "out").exists()
+def test_n_peers_reuse_lists_on_the_same_steps_and_equal_one_process_bitwise():
+    # Given the 3D dam break with a skin, its blocks rebalanced every 25 steps (a build each time)
+    sc = load_scene(DAM, ["particles.spacing=0.04", "run.neighbour_skin=0.1", "decomposition.balance_every=25"])
+    single = Simulation(sc, "f64")
+    for _ in range(300):
+        single.step()
+    reference = single.final_arrays()
+    assert single.grid.reuses > 2 * single.grid.builds
+    for dims in ((2, 1, 1), (2, 2, 1)):
+        # When it runs as peers
+        cluster = InProcessCluster(sc, int(np.prod(dims)), "f64", dims=dims)
+        for _ in range(300):
+            cluster.step()
+        result = cluster.final_arrays()
+        # Then every peer built its lists on the single process's steps, particles changed owner at
+        # the builds, and every array is the single process's, bit for bit
+        assert all((p.grid.builds, p.grid.reuses) == (single.grid.builds, single.grid.reuses) for p in cluster.peers)
+        assert sum(h.migrated for h in cluster.halos) > 0
+        for key in ("id", "x", "v", "rho"):
+            assert np.array_equal(result[key], reference[key]), (dims, key)
+
+
+def test_a_two_peer_checkpoint_between_builds_resumes_on_one_and_three_peers(tmp_path):
+    small = ["--set", "particles.spacing=0.05", "--set", "run.neighbour_skin=0.2", "--no-viewer", "--quiet"]
+    run = [sys.executable, "-m", "launch.cli", "run"]
+    # Given a continuous single-process run and a 2-peer run checkpointed at step 50
+    assert main(["run", DAM, *small, "--steps", "90", "--out", str(tmp_path / "full")]) == 0
+    done = subprocess.run(run + [DAM, *small, "--peers", "2", "--steps", "50", "--checkpoint-every", "50",
+                                 "--out", str(tmp_path / "a")], cwd=ROOT, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    lists = json.loads((tmp_path / "a" / "summary.json").read_text())["neighbours"]
+    assert lists["list_reuses"] > lists["list_builds"] > 0
+    full = np.load(tmp_path / "full" / "final.npz")
+    for peers in (1, 3):
+        # When it is resumed on 1 and on 3 peers
+        out = tmp_path / f"b{peers}"
+        done = subprocess.run(run + ["--resume", str(tmp_path / "a"), "--peers", str(peers), "--steps", "90",
+                                     "--no-viewer", "--quiet", "--out", str(out)], cwd=ROOT, capture_output=True,
+                              text=True)
+        assert done.returncode == 0, done.stderr
+        # Then each gives the continuous run's bits
+        resumed = np.load(out / "final.npz")
+        for key in ("id", "x", "v", "rho"):
+            assert np.array_equal(full[key], resumed[key]), (peers, key)
 
 
 @pytest.mark.fast
 def test_the_memory_estimate_counts_the_candidate_lists():
     plain = bytes_per_particle(load_scene(DAM))
     assert bytes_per_particle(load_scene(DAM, ["run.neighbour_skin=0.2"])) - plain > 4 * 64 * 1.2 ** 3
+
+
+@pytest.mark.fast
+def test_peers_drop_forged_moved_ghosts_and_list_decisions_and_stay_bitwise_equal():
+    # Given two in-process 2-peer clusters of the 2D dam break with a skin, one of them fed forged
+    # messages ahead of the genuine ones on steps that reuse their lists
+    sc = load_scene(DAM_2D, ["particles.spacing=0.01", "run.neighbour_skin=0.1"])
+    calm = InProcessCluster(sc, 2, "f64", dims=(2, 1, 1))
+    hit = InProcessCluster(sc, 2, "f64", dims=(2, 1, 1))
+    expected = {0: {}, 1: {}}
+    for step in range(12):
+        calm.step()
+        if 4 <= step <= 8:
+            for dest in (0, 1):
+                lo, hi = hit.halos[dest]._ghost_rows[1 - dest]
+                rows = hit.peers[dest].engine.rows_of(("x", "v", "m"), np.arange(lo, hi))
+                forged = {
+                    "owner": dict(rows, x=rows["x"] + 0.5),      # a ghost far beyond the skin
+                    "mass": dict(rows, m=-rows["m"]),
+                    "not finite": dict(rows, v=np.full_like(rows["v"], np.nan)),
+                    "count": {k: a[:-1] for k, a in rows.items()},
+                }
+                for reason, arrays in forged.items():
+                    hit.network.deliver(dest, 1 - dest, (step, "moved"), arrays)
+                    expected[dest][reason] = expected[dest].get(reason, 0) + 1
+                hit.network.deliver(dest, 1 - dest, (step, "lists"), {"max": np.array([np.nan])})
+                hit.network.deliver(dest, 1 - dest, (step, "lists"), {"max": np.zeros(2)})
+                expected[dest]["not finite"] += 1
+                expected[dest]["count"] += 1
+        reuses = hit.peers[0].grid.reuses
+        hit.step()
+        if 4 <= step <= 8:
+            assert hit.peers[0].grid.reuses == reuses + 1  # the forged "moved" messages were read
+    # Then every forged message was rejected for what it is, and the result did not change
+    for rank, halo in enumerate(hit.halos):
+        assert halo.transport.drops == {str(1 - rank): expected[rank]}, (rank, halo.transport.drops)
+    a, b = calm.final_arrays(), hit.final_arrays()
+    for key in ("id", "x", "v", "rho"):
+        assert np.array_equal(a[key], b[key]), key

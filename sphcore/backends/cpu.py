@@ -38,7 +38,6 @@ class CpuStages(Engine):
         self._where = None
         self._split = None
         self.all_rows = np.empty(0, dtype=np.int64)
-        self._identity = np.empty(0, dtype=np.int64)
         self._grad_w = np.empty((3, 0, 0), dtype=self.dtype)
         super().__init__(sim)
 
@@ -92,7 +91,7 @@ class CpuStages(Engine):
         key = (dec, rank, tuple(neighbours))
         if self._split is None or self._split[0] != key:
             s = self.sim._state
-            cells = self.sim.grid.cells_of(s.x[:s.n_owned])
+            cells = self.sim.grid.cells_of(self._placed(s)[:s.n_owned])
             owner = np.empty(s.n_owned, dtype=np.int64)
             mask = np.empty(s.n_owned, dtype=np.int64)
             zone_codes(cells, *zone_tables(dec, rank, neighbours), owner, mask)
@@ -128,7 +127,7 @@ class CpuStages(Engine):
     def zone_rows(self, dec, rank: int, neighbours) -> tuple:
         s = self.sim._state
         n = s.n_owned
-        cells = self.sim.grid.cells_of(s.x[:n])
+        cells = self.sim.grid.cells_of(self._placed(s)[:n])
         owner = np.empty(n, dtype=np.int64)
         mask = np.empty(n, dtype=np.int64)
         zone_codes(cells, *zone_tables(dec, rank, neighbours), owner, mask)
@@ -149,39 +148,23 @@ class CpuStages(Engine):
         self.sim.state = new
 
     def bin(self):
-        """x -> (cell, id) order, and the neighbour lists unless the passes walk the cells. With a skin
-        (grid.py), the lists are filtered from the candidates while they hold; a resumed run first
-        sorts and lists its rows by their saved reference positions, as the continuous run had them."""
-        grid, s = self.sim.grid, self.sim._state
-        if not grid.skin:
-            self.sort()
-            self.neighbours()
-            return
-        if grid.from_reference and not grid.listed(s):
-            self.sort(by=s.extra["x_ref"])
-            grid.build_candidates(s)
-        grid.from_reference = False
-        if grid.reusable(s):
-            grid.reuses += 1
-            grid.last_permutation = self._unmoved(s.n)
-        else:
-            self.sort()
-            s.extra["x_ref"][:] = s.x
-            grid.build_candidates(s)
-        grid.filter_neighbours(s.x, s.n_owned)
+        """x -> (cell, id) order, and the neighbour lists unless the passes walk the cells."""
+        self.sort()
+        self.neighbours()
 
-    def _unmoved(self, n):
-        """The identity permutation of n rows (a step that filters its lists sorts nothing)."""
-        if self._identity.shape[0] != n:
-            self._identity = np.arange(n, dtype=np.int64)
-        return self._identity
+    def _placed(self, s):
+        """The positions that place the rows in cells: x, or with a skin the reference positions
+        (Simulation._reuse_lists: x itself at a build, the saved ones when a resumed run rebuilds the
+        continuous run's lists)."""
+        return s.extra["x_ref"] if self.sim.grid.skin else s.x
 
     sorts_ghosts_apart = True
 
-    def sort(self, by=None):
+    def sort(self):
         self._where = None  # the new sort's inverse permutation is formed when a halo first needs it
         self._split = None  # and the interior and boundary rows when a halo first asks for them
-        self.sim.grid.sort(self.sim._state, by)
+        s = self.sim._state
+        self.sim.grid.sort(s, self._placed(s))
 
     def sort_ghosts(self):
         # The owned rows stay where they are, so their lists, density and interior/boundary split
@@ -191,13 +174,29 @@ class CpuStages(Engine):
         grid = self.sim.grid
         owned = grid.last_permutation[:s.n_owned].copy()
         self._where = None
-        grid.sort_ghosts(s)
+        grid.sort_ghosts(s, self._placed(s))
         grid.last_permutation = np.concatenate([owned, grid.last_permutation[s.n_owned:]])
 
     def neighbours(self, rows=None):
-        if self.model.neighbours != "walk":
-            s = self.sim._state
-            self.sim.grid.build_neighbours(s.x, s.n_owned, rows)
+        if self.model.neighbours == "walk":
+            return
+        s, grid = self.sim._state, self.sim.grid
+        if not grid.skin:
+            grid.build_neighbours(s.x, s.n_owned, rows)
+            return
+        if not grid.reusing:
+            grid.build_candidates(s.extra["x_ref"], s.n_owned, rows)
+        grid.filter_neighbours(s.x, s.n_owned, rows)
+
+    def lists_done(self):
+        self.sim.grid.lists_done(self.sim._state)
+
+    def displacement2(self) -> float:
+        return self.sim.grid.displacement2(self.sim._state)
+
+    def set_reference(self):
+        s = self.sim._state
+        s.extra["x_ref"][:s.n_owned] = s.x[:s.n_owned]
 
     def append_ghosts(self, ghosts_in: dict):
         s = self.sim._state

@@ -116,6 +116,18 @@ class Engine:
     # after the ghosts arrived (``bin``).
     sorts_ghosts_apart = False
 
+    # Reused lists (run.neighbour_skin, grid.py): the host backend only; scene.py refuses a skin elsewhere.
+    def lists_done(self):
+        """The step's neighbour lists are complete (a skin counts a build or a reuse)."""
+
+    def displacement2(self) -> float:
+        """m^2: the largest squared distance of an owned row from its reference position."""
+        raise NotImplementedError
+
+    def set_reference(self):
+        """The owned rows' reference positions become their positions (a build)."""
+        raise NotImplementedError
+
     def append_ghosts(self, ghosts_in: dict):
         """The ghost rows of ``ghosts_in`` (carried arrays by key) after the owned rows, which keep their
         carried and derived values and their scratch (their density may have been computed already)."""
