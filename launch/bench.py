@@ -101,7 +101,7 @@ def _device_used() -> int | None:
 
 
 def bench_case(scene_path: Path, dx: float, precision: str, threads: int, steps: int, backend: str = "cpu",
-               neighbours: str = "lists", skin: float = 0.0, after: int = 0) -> dict:
+               neighbours: str = "lists", skin: float = -1.0, after: int = 0) -> dict:
     """One timed case. Memory per particle: the host's peak RSS during the timed steps over its RSS
     before set-up (so it holds the state, scratch and grid; compiled code too on a cold cache), and on
     a GPU the device memory in use after the steps over that before set-up. ``skin``:
@@ -143,8 +143,8 @@ def bench_case(scene_path: Path, dx: float, precision: str, threads: int, steps:
         "particles": sim.n_particles, "dx": dx, "steps": steps, "dt": sim.dt, "wall_s": wall,
         "particle_steps_per_s": sim.n_particles * steps / wall, "steps_per_s": steps / wall, "first_step_s": first,
         "neighbours": sim.neighbours_sum / max(sim.state.n_owned, 1), "neighbour_search": neighbours,
-        "cells_per_support": sim.grid.reach, "neighbour_skin": skin, "after_steps": after, "t_start": sim.t - steps * sim.dt,
-        "list_builds": (sim.grid.builds - builds) if skin else steps,
+        "cells_per_support": sim.grid.reach, "neighbour_skin": sim.grid.skin, "after_steps": after, "t_start": sim.t - steps * sim.dt,
+        "list_builds": (sim.grid.builds - builds) if sim.grid.skin else steps,
         "stage_median_s": stages, "stage_total_s": {k: v["total_s"] for k, v in timed.items()},
         "untimed_s_per_step": untimed,
         "leaks": sim.leaks, "host_bytes_per_particle": host_bpp, "device_bytes_per_particle": device_bpp,
@@ -325,15 +325,16 @@ def _peer_cases(scene_path: Path, dx: float, args) -> list[dict]:
                      "wall_s": s["loop"]["wall_s"], "particle_steps_per_s": s["particle_steps_per_s"],
                      "neighbours": s["neighbours"]["mean"], "bytes_sent_per_step": s["bytes_sent"] / s["steps"],
                      "bytes_over_minimum": s.get("bytes_over_minimum"), "imbalance": s.get("imbalance"),
-                     "wait_s": [p["wait_s_total"] for p in s.get("per_peer", [])], "neighbour_skin": skin,
+                     "wait_s": [p["wait_s_total"] for p in s.get("per_peer", [])],
+                     "neighbour_skin": s["neighbours"].get("skin", 0.0),
                      "list_builds": s["neighbours"].get("list_builds", s["steps"])}
                 out.append(r)
                 extra = ""
                 if peers > 1:
                     extra = (f"  {r['bytes_sent_per_step'] / 1e3:.1f} kB/step ({r['bytes_over_minimum']:.3f}x the "
                              f"halo minimum), waiting {', '.join(f'{w:.2f}' for w in r['wait_s'])} s")
-                if skin:
-                    extra += f"  skin={skin:g} ({r['list_builds']} list builds)"
+                if r["neighbour_skin"]:
+                    extra += f"  skin={r['neighbour_skin']:g} ({r['list_builds']} list builds)"
                 print(f"{peers:>3} peer(s) x {threads} thread(s) {precision} N={r['particles']:>8} "
                       f"{r['particle_steps_per_s']:10.3e} particle-steps/s{extra}", flush=True)
     return out

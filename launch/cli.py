@@ -54,13 +54,14 @@ def _steps(text: str) -> int:
 
 
 def _skin(text: str) -> float:
-    """run.neighbour_skin as sph bench --skins takes it: a number in [0, 1] (of the support radius)."""
+    """run.neighbour_skin as sph bench --skins takes it: a number in [0, 1] (of the support radius), or
+    -1 for the scene's automatic choice."""
     try:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not 0.0 <= value <= 1.0:
-        raise argparse.ArgumentTypeError(f"{text!r}: a skin is from 0 to 1 (of the support radius)")
+    if not (0.0 <= value <= 1.0 or value == -1.0):
+        raise argparse.ArgumentTypeError(f"{text!r}: a skin is from 0 to 1 (of the support radius), or -1 (auto)")
     return value
 
 
@@ -454,10 +455,11 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--neighbours", nargs="+", choices=("lists", "walk"), default=["lists"],
                        help="neighbour search of each case: lists, walk (the 27-cell walk, no lists), or both "
                             "side by side with their ratio (default: lists)")
-    bench.add_argument("--skins", type=_skin, nargs="+", default=[0.0],
-                       help="run.neighbour_skin of each case: 0 builds the lists every step; e.g. --skins 0 0.1 "
-                            "times Verlet lists reused until a particle moves 0.45 x 0.1 H, side by side with "
-                            "their ratio (default: 0)")
+    bench.add_argument("--skins", type=_skin, nargs="+", default=[-1.0],
+                       help="run.neighbour_skin of each case (also of --peers runs): 0 builds the lists every step, "
+                            "0.1 reuses them until a particle moves 0.45 x 0.1 H, -1 is the scene's automatic "
+                            "choice (0.1 for WCSPH on the CPU); e.g. --skins 0 0.1 times both side by side with "
+                            "their ratio (default: -1)")
     bench.add_argument("--after", type=_steps, default=0, metavar="STEPS",
                        help="run STEPS untimed steps before the timed ones, so that the flow has developed (the "
                             "timed steps otherwise start from rest, where lists are cheapest to build and to "
@@ -717,10 +719,11 @@ def _check_bench(args):
     if args.after and (args.external or args.peers != [1] or args.until is not None or args.network):
         raise UsageError(f"--after {args.after}: the other codes and the peer runs start from rest, so --after "
                          "does not combine with --external, --peers, --until or --network")
-    if any(args.skins) and (args.network or args.backend != "cpu" or args.until is not None
+    if any(s > 0 for s in args.skins) and (args.network or args.backend != "cpu" or args.until is not None
                             or "walk" in args.neighbours):
         raise UsageError(f"--skins {' '.join(f'{s:g}' for s in args.skins)}: reused lists are timed on the CPU "
-                         "backend with lists (not with --network, --backend cuda, --until or --neighbours walk)")
+                         "backend with lists (not with --network, --backend cuda, --until or --neighbours walk; "
+                         "-1 or 0 there)")
     if args.until is not None:
         if args.network or args.backend != "cpu" or args.peers != [1] or args.neighbours != ["lists"]:
             raise UsageError("--until times one CPU process with neighbour lists: it does not combine with "
@@ -734,13 +737,13 @@ def _check_bench(args):
             raise UsageError("--backend cuda: --external compares CPU codes; run it without --backend cuda")
 
 
-def _check_peers(scene, n_peers: int):
-    """The scene's decomposition fits n_peers (checked before any process starts)."""
+def _check_peers(scene, n_peers: int, backend: str = "cpu"):
+    """The scene's decomposition fits n_peers on ``backend`` (checked before any process starts)."""
     from nodes.peer import decomposition_for
     from sphcore.solver import Simulation
     if n_peers == 1 and not any(scene.decomposition.dims):
         return
-    grid = Simulation.grid_for(scene)
+    grid = Simulation.grid_for(scene, backend)
     try:
         decomposition_for(scene, grid, n_peers)
     except ValueError as e:
@@ -803,7 +806,7 @@ def _cmd_run(args) -> int:
             raise UsageError(f"--hosts: {e}") from None
         if args.peers not in (1, len(hosts)):
             raise UsageError(f"--peers {args.peers} --hosts {args.hosts}: the hosts file lists {len(hosts)} peers")
-        _check_peers(scene, len(hosts))
+        _check_peers(scene, len(hosts), args.backend)
         _check_restarts(args, scene)
         from sphcore.initial import scene_report
         scene_report(scene)  # the blocks, as each peer will fill them, before anything starts
@@ -820,7 +823,7 @@ def _cmd_run(args) -> int:
     out = _output_folder(args, scene)
     _check_restarts(args, scene)
     if args.peers > 1:
-        _check_peers(scene, args.peers)
+        _check_peers(scene, args.peers, args.backend)
         if ckpt is None:  # the blocks, as each peer will fill them, before OUT/tls or any process
             from sphcore.initial import scene_report
             scene_report(scene)
@@ -1121,7 +1124,7 @@ def _cmd_peer(args) -> int:
     _check_backend(args)
     scene, ckpt = _scene_for_run(args)
     out = _output_folder(args, scene)
-    _check_peers(scene, args.world)
+    _check_peers(scene, args.world, args.backend)
     if args.threads:
         import numba
         numba.set_num_threads(args.threads)

@@ -23,15 +23,16 @@ Each step (``Grid.bin``):
 Summing in this order is what makes a run reproducible bit for bit, and what lets a distributed
 run (ghost rows included) reproduce a single-process run exactly.
 
-With a skin (``run.neighbour_skin`` = s > 0; one process, lists), steps 1-4 run only when needed (a
+With a skin (``run.neighbour_skin`` = s > 0, lists on the CPU), steps 1-4 run only when needed (a
 Verlet list): step 4 lists every row within H (1 + s) (the *candidates*, cells sized for that
-radius), and the positions at that moment are kept (``state.extra["x_ref"]``, carried: the
-checkpoints hold it). Each step then filters every row's candidates to those within H, in their
-order, which costs about a quarter of a build; a new build comes once some particle has moved
-``REUSE_SHARE`` s H from its reference position (two particles that were farther apart than
-H (1 + s) then cannot have come within H of each other: the triangle inequality, with a margin over
-rounding). The sums run over the candidates' order of the last build, so a resumed run sorts and
-lists by the saved reference positions first, and reproduces the continuous run bit for bit.
+radius) at the rows' reference positions (``state.extra["x_ref"]``, carried: checkpoints hold it),
+which a build sets to x, and which place the rows in cells. Each step then filters every row's
+candidates to those within H, in their order, which costs about a quarter of a build; a new build
+comes once some particle has moved ``REUSE_SHARE`` s H from its reference position (two particles
+that were farther apart than H (1 + s) then cannot have come within H of each other: the triangle
+inequality, with a margin over rounding). The sums run in the candidates' order of the last build,
+so a resumed run sorts and lists by the saved reference positions, and reproduces the continuous
+run bit for bit. ``Simulation._reuse_lists`` decides, alike on every peer.
 
 Periodic axes wrap cell indices and use minimum-image distances; along them the cell size is
 stretched to L / (R floor(L / H)) so the cells tile the period exactly (the period must hold at
@@ -612,7 +613,8 @@ class Grid:
         self.cand_counts = np.zeros(0, dtype=np.int32)
         self._listed_x = None
         self._listed_rows = (0, 0)
-        self.reusing = False  # this step filters the candidates it holds (Simulation._reuse_lists)
+        self.reusing = False    # this step filters the candidates it holds (Simulation._reuse_lists)
+        self.restoring = False  # ... after building them again from the reference positions
         self.builds = 0
         self.reuses = 0
         self.from_reference = False
@@ -753,13 +755,16 @@ class Grid:
         return self._fill("nbr", "counts", n_query, rows, build)
 
     def lists_done(self, state):
-        """The step's lists are complete: remember the state they belong to, count a build or a reuse."""
+        """The step's lists are complete: remember the state they belong to, count a build (new
+        reference positions) or a reuse (the last build's lists, filtered, also when they were built
+        again from its reference positions)."""
         self._listed_x = state.x
         self._listed_rows = (state.n, state.n_owned)
         if self.reusing:
             self.reuses += 1
         else:
             self.builds += 1
+        self.restoring = False
 
     def cells_of(self, x):
         """(n, 3) int64 cell coordinates of positions x (n, 3)."""

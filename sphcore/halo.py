@@ -13,6 +13,10 @@ that yields while it waits for messages (a single process never waits):
     split_rows           while a phase is on its way: (interior, boundary) owned rows, the interior
                          ones out of reach of every ghost (computed meanwhile: solver._overlapped)
     reduce_max           the global max of the step statistics (adaptive dt, health check)
+    reduce_max_value     the global max of one value: with a skin, whether every peer's lists hold
+    exchange_moved       exchange 1 of a step that reuses its lists (every peer agreed): the same
+                         ghost rows' x, v, m, in the order of the last build, pending ("moved") like
+                         exchange 2; no migrants (a particle keeps its owner until the next build)
 
 Load balancing (``balance_every`` > 0): at the start of exchange 1 of every K-th step the peers sum
 their per-axis particle histograms, all compute the same balanced cuts
@@ -30,7 +34,8 @@ that step and phase: the array names, the run's dtype, the counts the protocol f
 exchange 2 and later exchanges are the ghosts of exchange 1 from that peer; a reduction has
 exactly its arrays; only rank 0 announces commands), finite values, positive masses, ids of this
 scene, and positions where the protocol puts them (a migrant in this peer's block, a ghost in its
-incoming zone next to the sender's block). A message that fails raises ``Reject`` in the check;
+incoming zone next to the sender's block; with a skin, by the reference positions, and a ghost of
+"moved" within the skin's reach of its reference position). A message that fails raises ``Reject`` in the check;
 the transport drops and counts it and waits for the next one from that source.
 """
 from __future__ import annotations
@@ -111,6 +116,9 @@ class NullHalo:
     def exchange_moved(self, sim):
         return
         yield
+
+    def rebalance_due(self, sim) -> bool:
+        return False
 
     def reduce_max_value(self, sim, phase, value: float):
         return value
@@ -257,7 +265,7 @@ class PeerHalo:
         step = sim.step_index
         s = sim.state
         n = s.n_owned
-        cells = sim.grid.cells_of(s.x[:n])
+        cells = sim.grid.cells_of((s.extra["x_ref"] if sim.grid.skin else s.x)[:n])  # where the rows are placed
         ncell = self.dec.ncell
         weight = self._seconds_per_particle(sim, n) if self.balance_by == "time" else 1.0
         hist = {f"h{a}": np.bincount(cells[:, a], minlength=ncell[a]) * weight for a in range(3)}
@@ -300,7 +308,7 @@ class PeerHalo:
         if self._pending:
             raise RuntimeError(f"peer {self.rank}, step {step}: ghost rows of {sorted(self._pending)} were sent and "
                                "never received")
-        if self.balance_every and step > 0 and step % self.balance_every == 0 and self._balanced_at != step:
+        if self.rebalance_due(sim):
             self._balanced_at = step
             yield from self.rebalance(sim)
         engine = sim.engine
@@ -350,6 +358,11 @@ class PeerHalo:
             return
         ghosts = yield from self._receive_positions(sim, first, empty)
         engine.rebuild(gone, migrants, ghosts)
+
+    def rebalance_due(self, sim) -> bool:
+        """Whether this step's exchange 1 moves the cuts (every balance_every steps, once a step)."""
+        step = sim.step_index
+        return bool(self.balance_every and step > 0 and step % self.balance_every == 0 and self._balanced_at != step)
 
     def exchange_moved(self, sim):
         """Exchange 1 of a step that reuses its lists (every peer agreed, Simulation._reuse_lists): no

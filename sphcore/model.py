@@ -19,7 +19,7 @@ from sphcore.choices import EOSES, INTEGRATORS, KERNELS, PRESSURE_GRADIENTS, VIS
 from sphcore.params import make_params
 from sphcore.physics.external import ramp_factor
 from sphcore.physics.kernels import kernel_constants, w
-from sphcore.scene import Scene, grid_reach, stores_pair_gradients
+from sphcore.scene import Scene, grid_reach, list_skin, stores_pair_gradients
 from sphcore.solvers import SOLVERS
 
 DTYPES = {"f32": np.float32, "f64": np.float64}
@@ -34,15 +34,17 @@ def scene_value(scene: Scene, key: str):
     return getattr(getattr(scene, section), name)
 
 
-def make_grid(scene, walls, H, dtype):
-    """The global grid: the walls' bounding box plus one cell of margin on non-periodic axes."""
+def make_grid(scene, walls, H, dtype, backend="cpu"):
+    """The global grid: the walls' bounding box plus one cell of margin on non-periodic axes; its
+    cells sized for the lists' skin (scene.list_skin) on ``backend``."""
     periodic = tuple(bool(p) for p in scene.domain.periodic)
     lo, hi = walls.lo.copy(), walls.hi.copy()
     for d in range(3):
         if not periodic[d] and d < scene.dim:
             lo[d] -= H
             hi[d] += H
-    return grid_mod.Grid(lo, hi, H, periodic, dtype, reach=grid_reach(scene), skin=scene.run.neighbour_skin)
+    return grid_mod.Grid(lo, hi, H, periodic, dtype, reach=grid_reach(scene),
+                         skin=list_skin(scene, backend))
 
 
 class Model:
@@ -85,7 +87,7 @@ class Model:
         S = lattice_sum(self.kernel, scene.dim, self.H, dx)
         self.mass = rho0 / S  # the full lattice sums to rho0
 
-        self.host_grid = make_grid(scene, self.walls, self.H, dtype)
+        self.host_grid = make_grid(scene, self.walls, self.H, dtype, backend)
         self.walls.near = near_wall_cells(self.walls, self.host_grid)  # where the walls' terms can be non-zero
         self.grid_lo = self.host_grid.origin.astype(np.float64)
         self.lo = self.grid_lo.astype(dtype)
@@ -123,7 +125,7 @@ class Model:
         # kappa = p / rho^2, the next step's warm start); the carried density (physics/continuity.py).
         # 0 means a cold start: kappa = 0, density = rho0.
         self.extra_names = (SOLVERS[sph.solver].carried + (("density",) if self.continuity else ())
-                            + (("x_ref",) if scene.run.neighbour_skin else ()))
+                            + (("x_ref",) if list_skin(scene, backend) else ()))
         # the compile-time choices of this model's stages (stages.CHOICES); ``divergence`` is per call
         self.choices = {"kernel": int(self.kernel), "eos": int(self.eos), "viscosity": int(self.viscosity),
                         "pressure_gradient": int(self.pressure_gradient),
@@ -134,11 +136,11 @@ class Model:
                         "add": int(self.use_xsph)}
 
     @staticmethod
-    def grid_for(scene: Scene):
-        """The global grid of ``scene`` without a model (to check a decomposition)."""
+    def grid_for(scene: Scene, backend: str = "cpu"):
+        """The global grid of ``scene`` on ``backend`` without a model (to check a decomposition)."""
         kernel = KERNELS[scene.sph.kernel]
         H = scene.sph.support * scene.particles.spacing
-        return make_grid(scene, build_walls(scene, kernel, H, np.float64), H, np.float64)
+        return make_grid(scene, build_walls(scene, kernel, H, np.float64), H, np.float64, backend)
 
     @staticmethod
     def fluid_gravity(scene: Scene) -> tuple:

@@ -336,11 +336,13 @@ class Run:
                                      "walk (whose every pass would visit 125 cells instead of 27). Same neighbours; "
                                      "the order of the sums, so the rounding, differs between 1 and 2",
                                   choices=(0, 1, 2), control=AT_START)
-    neighbour_skin: float = spec(0.0, "Verlet lists: build the lists out to H (1 + skin) and reuse them, filtered to H, "
-                                      "until some particle has moved 0.45 skin H (0 = build every step). The same "
-                                      "neighbours each step, summed in the order of the last build, so the last bits "
-                                      "differ from skin 0; one process with lists on the CPU (docs/BENCHMARKS.md)",
-                                 range=(0.0, 1.0), control=AT_START)
+    neighbour_skin: float = spec(-1.0, "Verlet lists: build the lists out to H (1 + skin) and reuse them, filtered to H, "
+                                       "until some particle has moved 0.45 skin H (0 = build every step; -1 = auto: "
+                                       "0.1 for WCSPH with lists on the CPU backend, else 0; DFSPH's steps move "
+                                       "particles too far for a reuse to pay). The same neighbours each step, summed "
+                                       "in the order of the last build: the last bits differ from a skin of 0; N "
+                                       "peers and a resumed run keep one process's bits (docs/BENCHMARKS.md)",
+                                 range=(-1.0, 1.0), control=AT_START)
     log_every: int = spec(0, "steps between progress log lines when not on a terminal (0 = every 5 % of the run)",
                           range=(0, 10**9), control=AT_START)
     max_density_ratio: float = spec(3.0, "stop with a diagnostic if some rho/rho0 exceeds this",
@@ -948,7 +950,10 @@ def _check_combinations(s: Scene, files: bool = True, backend: str = "cpu") -> S
     changes, are not checked again (the running run itself holds memory the estimate would count as
     missing)."""
     dom = s.domain
-    if s.run.neighbour_skin:
+    if -1.0 < s.run.neighbour_skin < 0.0:
+        raise SceneError(f"run.neighbour_skin = {s.run.neighbour_skin:g}: a skin is from 0 to 1 (of the support "
+                         "radius), or -1 for auto")
+    if s.run.neighbour_skin > 0.0:
         if s.run.neighbours != "lists":
             raise SceneError(f"run.neighbour_skin = {s.run.neighbour_skin:g}: reused lists need run.neighbours = "
                              f"'lists', not {s.run.neighbours!r} (or set run.neighbour_skin = 0)")
@@ -973,13 +978,18 @@ def _check_combinations(s: Scene, files: bool = True, backend: str = "cpu") -> S
             raise SceneError(f"domain.periodic = {list(dom.periodic)!r}: a periodic container cannot be rotated or "
                              "scaled (domain.rotation = [0, 0, 0], domain.scale = 1)")
         H = s.sph.support * s.particles.spacing
+        skin = max(s.run.neighbour_skin, 0.0)  # the automatic skin fits itself (list_skin)
         for d in range(s.dim):
             if dom.periodic[d]:
-                length = dom.size[d] if dom.container == "box" else dom.bounds_max[d] - dom.bounds_min[d]
+                length = _period(s, d)
                 if length < 3.0 * H:
                     raise SceneError(f"domain.periodic: axis {'xyz'[d]} is {length:g} m long, shorter than 3 support "
                                      f"radii (3 x sph.support x particles.spacing = {3.0 * H:g} m); lengthen it or "
                                      "refine particles.spacing")
+                if length < 3.0 * H * (1.0 + skin):
+                    raise SceneError(f"run.neighbour_skin = {skin:g}: the lists reach H (1 + skin) = {H * (1 + skin):g} "
+                                     f"m, and periodic axis {'xyz'[d]} ({length:g} m) must hold 3 of them; lower "
+                                     f"the skin to {max(length / (3.0 * H) - 1.0, 0.0):.3f} or less, or set -1 (auto)")
     if dom.container == "none":
         lo, hi = dom.bounds_min, dom.bounds_max
         if any(hi[d] <= lo[d] for d in range(s.dim)):
@@ -1457,16 +1467,41 @@ def bytes_per_particle(s: Scene, backend: str = "cpu") -> int:
     """The host memory estimate per particle of one process (HOST_BYTES_PER_PARTICLE; with DFSPH's
     stored pair gradients when the scene has them)."""
     return (HOST_BYTES_PER_PARTICLE[backend] + (PAIR_GRADIENT_BYTES if stores_pair_gradients(s, backend) else 0)
-            + skin_bytes(s))
+            + skin_bytes(s, backend))
 
 
-def skin_bytes(s: Scene) -> int:
+AUTO_SKIN = 0.1  # run.neighbour_skin = -1 where a reuse pays (docs/BENCHMARKS.md, "Verlet lists")
+
+
+def _period(s: Scene, d: int) -> float:
+    """The length of periodic axis d (m)."""
+    dom = s.domain
+    return dom.size[d] if dom.container == "box" else dom.bounds_max[d] - dom.bounds_min[d]
+
+
+def list_skin(s: Scene, backend: str = "cpu") -> float:
+    """The run's list skin (run.neighbour_skin, -1 resolved): AUTO_SKIN for WCSPH with lists on the
+    CPU backend, else 0 (DFSPH's steps move particles ~0.2 spacings, more than a skin of 0.1 H lets
+    through: its lists would be built, larger, every step); 0 too where a periodic axis is shorter
+    than 3 H (1 + AUTO_SKIN) (the lists' cells must tile the period)."""
+    if s.run.neighbour_skin >= 0.0:
+        return s.run.neighbour_skin
+    if not (s.sph.solver == "wcsph" and s.run.neighbours == "lists" and backend == "cpu"):
+        return 0.0
+    H = s.sph.support * s.particles.spacing
+    if any(s.domain.periodic[d] and _period(s, d) < 3.0 * H * (1.0 + AUTO_SKIN) for d in range(s.dim)):
+        return 0.0
+    return AUTO_SKIN
+
+
+def skin_bytes(s: Scene, backend: str = "cpu") -> int:
     """Per particle, what reused lists add (run.neighbour_skin): the candidate lists (int32, the
     default list capacity of 64 grown by (1 + skin)^dim, plus a spare column) and the reference
     positions (3 x 8 B at most)."""
-    if not s.run.neighbour_skin:
+    skin = list_skin(s, backend)
+    if not skin:
         return 0
-    return int(4 * (64 * (1.0 + s.run.neighbour_skin) ** s.dim + 1)) + 24
+    return int(4 * (64 * (1.0 + skin) ** s.dim + 1)) + 24
 
 
 def block_estimate(block: Block, dim: int, dx: float) -> float:

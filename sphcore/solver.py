@@ -240,7 +240,10 @@ class Simulation:
             kept = {body.wall: body for body in self.model.walls.bodies}  # floating bodies go on where they are
             new.walls.moves = tuple((q, kept.get(q, m) if isinstance(m, FloatingBody) else m) for q, m in new.walls.moves)
             self.model = new
-            self.grid = new.host_grid
+            old_grid, self.grid = self.grid, new.host_grid
+            # with a skin: the lists as the resumed run rebuilds them, from the reference positions
+            self.grid.from_reference = True
+            self.grid.builds, self.grid.reuses = old_grid.builds, old_grid.reuses
             self._add_extra(state)
             if self.backend == "cuda":
                 from sphcore.backends import cuda as cuda_backend
@@ -270,9 +273,10 @@ class Simulation:
         self.solver.stats = stats
 
     @staticmethod
-    def grid_for(scene: Scene):
-        """The global grid of ``scene`` without generating particles (to check a decomposition)."""
-        return Model.grid_for(scene)
+    def grid_for(scene: Scene, backend: str = "cpu"):
+        """The global grid of ``scene`` on ``backend`` without generating particles (to check a
+        decomposition)."""
+        return Model.grid_for(scene, backend)
 
     # -- stages --------------------------------------------------------------------------------
     def _ramped_params(self):
@@ -420,29 +424,27 @@ class Simulation:
     def _reuse_lists(self, halo):
         """Generator: whether this step filters the lists it holds (run.neighbour_skin; grid.py) instead
         of building them, decided alike on every peer from the global largest displacement of a row
-        from its reference position. A build comes when some row moved REUSE_SHARE of the skin, when
-        some peer's rows were replaced (an inlet, an outlet, a resume) and at every rebalance step (the
-        blocks move: a single process builds there too, so that N peers keep one process's bits). At a
-        build, the rows' reference positions become their positions, unless a resumed run whose
-        particles have not moved that far rebuilds the continuous run's lists from the saved ones."""
+        from its reference position. A build comes when some row moved REUSE_SHARE of the skin, or
+        when some peer's rows were replaced (an inlet, an outlet): the rows' reference positions then
+        become their positions. A step that may reuse but whose rows moved between peers or were
+        loaded (a rebalance, a resume, a restart in place) sorts and lists them anew from the saved
+        reference positions: exactly the lists a single, uninterrupted run holds, so neither changes
+        the bits."""
         grid, e = self.grid, self.engine
         if not grid.skin:
             return False
-        resumed = grid.from_reference
+        restore = grid.from_reference
         grid.from_reference = False
-        moved2 = e.displacement2() if (resumed or grid.listed(self._state)) else math.inf
-        every = self.scene.decomposition.balance_every
-        if every and self.step_index > 0 and self.step_index % every == 0:
-            moved2 = math.inf
+        moved2 = e.displacement2() if (restore or grid.listed(self._state)) else math.inf
         moved2 = yield from halo.reduce_max_value(self, "lists", min(moved2, 1e300) if moved2 == moved2 else 1e300)
         grid.reusing = moved2 < grid.reuse_limit2
-        if grid.reusing and not resumed:
-            return True
         if not grid.reusing:
-            e.set_reference()                                      # x_ref = x: the rows are placed by x
-        grid.reusing = False                                       # (a resumed run: by the saved x_ref)
-        return False
-
+            e.set_reference()                                      # x_ref = x: a fresh build
+            return False
+        if restore or halo.rebalance_due(self):
+            grid.restoring = True                                  # the build's lists from x_ref
+            return False
+        return True
     def _fields(self, halo, prm, commit):
         """Exchange 1, the neighbour lists, density and pressure (DFSPH: its factors and the
         reference density), exchange 2: everything the accelerations need."""

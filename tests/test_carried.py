@@ -75,8 +75,9 @@ def test_any_extra_array_follows_its_particle_through_sorting_migration_and_reba
     # Given two peers of a periodic vortex (particles cross the cut both ways), with an array in
     # state.extra that no solver uses: each particle's own id. Balancing by measured time moves the
     # cuts (by how much varies from run to run; the tracer must follow its particle either way)
+    # (no skin: particles migrate every step; with one they move at builds only, test_neighbour_skin.py)
     sc = scene("taylor_green_2d", "particles.spacing=0.05", "decomposition.balance_every=4",
-               "decomposition.balance_by='time'")
+               "decomposition.balance_by='time'", "run.neighbour_skin=0")
     cluster = InProcessCluster(sc, 2, "f64", dims=(2, 1, 1))
     for sim in cluster.peers:
         sim.state.extra["tracer"] = sim.state.id.astype(np.float64)

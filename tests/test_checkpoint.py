@@ -202,13 +202,36 @@ def test_a_latest_file_that_names_no_checkpoint_folder_is_refused_naming_it(tiny
 
 
 def test_an_extra_array_the_run_does_not_carry_is_refused(tiny, tmp_path, capsys):
-    # Given tiny's checkpoint (its run carries no extra array) with an extra_bogus array added
+    # Given tiny's checkpoint (its run carries one extra array, the lists' reference positions) with an
+    # extra_bogus array added
     damage(tiny, arrays=lambda a: dict(a, extra_bogus=np.zeros((len(a["id"]), 7))))
     # Then resuming from it is refused before the first step, naming the array
     assert resume_tiny(tiny, tmp_path) == 2
     one_error_line(capsys.readouterr().err, "'extra_bogus': this run carries no such array",
-                   "the extra arrays it carries: none")
+                   "the extra arrays it carries: extra_x_ref")
     assert not (tmp_path / "resumed").exists()
+
+
+def test_reference_positions_of_another_shape_are_refused(tiny, tmp_path, capsys):
+    # Given tiny's checkpoint whose lists' reference positions hold one number per particle
+    damage(tiny, arrays=lambda a: dict(a, extra_x_ref=a["extra_x_ref"][:, 0].copy()))
+    # Then it is refused with its shape and the shape the run carries
+    assert resume_tiny(tiny, tmp_path) == 2
+    one_error_line(capsys.readouterr().err, "'extra_x_ref' is float64 (498,)", "this run carries it as float64 (498, 3)")
+    assert not (tmp_path / "resumed").exists()
+
+
+def test_reference_positions_far_from_the_particles_only_mean_a_build(tiny_run, tiny, tmp_path):
+    # Given tiny's checkpoint whose lists' reference positions are 1 km off (checksum recomputed)
+    damage(tiny, arrays=lambda a: dict(a, extra_x_ref=a["extra_x_ref"] + 1000.0))
+    # Then the resumed run builds its lists from the particles' positions instead: the same neighbours,
+    # so the result of the true checkpoint's resume to the rounding of another order of the sums
+    assert resume_tiny(tiny, tmp_path) == 0
+    assert main(["run", "--resume", str(tiny_run), "--steps", "3", "--out", str(tmp_path / "true"), "--quiet",
+                 "--no-viewer"]) == 0
+    a, b = final(tmp_path / "true"), final(tmp_path / "resumed")
+    assert np.array_equal(a["id"], b["id"])
+    assert np.allclose(a["x"], b["x"], rtol=0, atol=1e-12) and np.allclose(a["v"], b["v"], rtol=1e-9, atol=1e-12)
 
 
 def test_an_extra_array_of_another_shape_is_refused_before_it_reaches_the_compiled_passes(tiny, tmp_path, capsys):

@@ -81,7 +81,7 @@ def test_stored_pair_gradients_are_the_computed_ones_and_step_alike():
 def test_the_memory_estimate_counts_the_stored_pair_gradients():
     # Given the dam break with WCSPH, with DFSPH on lists, and with DFSPH walking the cells
     from sphcore.scene import PAIR_GRADIENT_BYTES, SceneError as Refused, _check_resources, resource_estimate
-    wcsph = scene("dam_break")
+    wcsph = scene("dam_break", "run.neighbour_skin=0")  # no candidate lists either
     dfsph = scene("dam_break", "sph.solver='dfsph'")
     walk = scene("dam_break", "sph.solver='dfsph'", "run.neighbours='walk'")
     wcsph_walk = scene("dam_break", "run.neighbours='walk'")  # the walk's grid: cells of H, not H / 2

@@ -155,7 +155,7 @@ def test_lists_are_built_once_a_step_in_one_process_and_in_two_parts_on_a_peer(m
         return build(self, x, n_query, rows)
 
     monkeypatch.setattr(Grid, "build_neighbours", counted)
-    sc = scene("dam_break_2d", "particles.spacing=0.02")
+    sc = scene("dam_break_2d", "particles.spacing=0.02", "run.neighbour_skin=0")  # no reused lists
     # When one process steps twice: one build of every row a step
     sim = Simulation(sc, "f64")
     builds.clear()

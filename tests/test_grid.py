@@ -241,9 +241,9 @@ def test_cells_are_half_the_support_with_lists_and_the_support_with_the_walk_unl
     from conftest import scene
     from sphcore.scene import SceneError, grid_reach, resource_estimate
     from sphcore.solver import Simulation
-    lists = scene("dam_break", "particles.spacing=0.05")
+    lists = scene("dam_break", "particles.spacing=0.05", "run.neighbour_skin=0")  # cells for H, not H (1 + skin)
     walk = scene("dam_break", "particles.spacing=0.05", "run.neighbours='walk'")
-    cells_h = scene("dam_break", "particles.spacing=0.05", "run.cells_per_support=1")
+    cells_h = scene("dam_break", "particles.spacing=0.05", "run.cells_per_support=1", "run.neighbour_skin=0")
     walk_half = scene("dam_break", "particles.spacing=0.05", "run.neighbours='walk'", "run.cells_per_support=2")
     # Then the default (0) gives lists cells of H / 2 and the walk cells of H, and a set value wins
     assert [grid_reach(s) for s in (lists, walk, cells_h, walk_half)] == [2, 1, 1, 2]

@@ -38,7 +38,8 @@ ROOT = Path(__file__).resolve().parent.parent
 # mailbox to step 1 while the run is held there, and the forged replay of step 0 that this test
 # expects to be filed as a duplicate would then be an old step (run.energy_check_every, sphcore/health.py)
 SCENE = ["configs/dam_break_2d.toml", "--set", "particles.spacing=0.01", "--precision", "f64",
-         "--set", "run.energy_check_every=0"]
+         "--set", "run.energy_check_every=0",
+         "--set", "run.neighbour_skin=0"]  # exchange 1 in full every step (reused lists: test_neighbour_skin.py)
 STEPS = 1500  # long enough that the pause, sent after the first whole step is seen, comes before the end
 # (400 were run through on a loaded machine while the controller was still connecting)
 
@@ -320,7 +321,7 @@ def test_in_process_peers_drop_what_breaks_the_protocol_and_stay_bitwise_equal()
     from nodes.cluster import InProcessCluster
     # Given two in-process clusters of the same scene, one of them fed forged messages ahead of
     # the genuine ones in steps 3 to 6
-    sc = scene("dam_break_2d", "particles.spacing=0.01")
+    sc = scene("dam_break_2d", "particles.spacing=0.01", "run.neighbour_skin=0")  # exchange 1 every step
     calm = InProcessCluster(sc, 2, "f64", dims=(2, 1, 1))
     hit = InProcessCluster(sc, 2, "f64", dims=(2, 1, 1))
     expected = {0: {}, 1: {}}

@@ -78,7 +78,8 @@ def test_a_skin_changes_the_rounding_only():
     # Given the 2D dam break run 300 steps with lists built every step, with a skin, and with cells of H
     # (run.cells_per_support = 1: the same neighbours summed in another order, a pure change of rounding)
     runs = {}
-    for name, sets in (("plain", []), ("skin", ["run.neighbour_skin=0.1"]), ("cells", ["run.cells_per_support=1"])):
+    for name, sets in (("plain", ["run.neighbour_skin=0"]), ("skin", ["run.neighbour_skin=0.1"]),
+                       ("cells", ["run.neighbour_skin=0", "run.cells_per_support=1"])):
         sim = Simulation(load_scene(DAM_2D, sets), "f32")
         for _ in range(300):
             sim.step()
@@ -125,7 +126,7 @@ def test_a_skin_where_it_cannot_work_is_refused(sets, backend, fragment):
 
 def test_n_peers_reuse_lists_on_the_same_steps_and_equal_one_process_bitwise():
     # Given the 3D dam break with a skin, its blocks rebalanced every 25 steps (a build each time)
-    sc = load_scene(DAM, ["particles.spacing=0.04", "run.neighbour_skin=0.1", "decomposition.balance_every=25"])
+    sc = load_scene(DAM, ["particles.spacing=0.04", "run.neighbour_skin=0.03", "decomposition.balance_every=25"])
     single = Simulation(sc, "f64")
     for _ in range(300):
         single.step()
@@ -171,7 +172,7 @@ def test_a_two_peer_checkpoint_between_builds_resumes_on_one_and_three_peers(tmp
 
 @pytest.mark.fast
 def test_the_memory_estimate_counts_the_candidate_lists():
-    plain = bytes_per_particle(load_scene(DAM))
+    plain = bytes_per_particle(load_scene(DAM, ["run.neighbour_skin=0"]))
     assert bytes_per_particle(load_scene(DAM, ["run.neighbour_skin=0.2"])) - plain > 4 * 64 * 1.2 ** 3
 
 
@@ -212,3 +213,22 @@ def test_peers_drop_forged_moved_ghosts_and_list_decisions_and_stay_bitwise_equa
     a, b = calm.final_arrays(), hit.final_arrays()
     for key in ("id", "x", "v", "rho"):
         assert np.array_equal(a[key], b[key]), key
+
+
+@pytest.mark.fast
+def test_the_automatic_skin_reuses_lists_for_wcsph_on_the_cpu_only():
+    from sphcore.scene import AUTO_SKIN, list_skin
+    wcsph, dfsph = load_scene(DAM), load_scene(DAM, ["sph.solver='dfsph'"])
+    assert wcsph.run.neighbour_skin == -1.0  # the default is automatic
+    assert list_skin(wcsph) == AUTO_SKIN > 0.0
+    assert list_skin(dfsph) == 0.0                  # its steps move particles farther than the skin
+    assert list_skin(load_scene(DAM, backend="cuda"), "cuda") == 0.0
+    assert list_skin(load_scene(DAM, ["run.neighbours='walk'"])) == 0.0
+    assert list_skin(load_scene(DAM, ["run.neighbour_skin=0.3", "sph.solver='dfsph'"])) == 0.3  # a set value wins
+    with pytest.raises(SceneError, match="or -1 for auto"):
+        load_scene(DAM, ["run.neighbour_skin=-0.5"])
+    # a period that holds 3 H but not 3 H (1 + skin): no skin automatically, a set one is refused
+    short = ["particles.spacing=0.0833333333"]  # the 1 m Taylor-Green box holds 3 H, just
+    assert list_skin(load_scene(TAYLOR_GREEN, short)) == 0.0
+    with pytest.raises(SceneError, match=r"lower the skin to 0\.000 or less"):
+        load_scene(TAYLOR_GREEN, short + ["run.neighbour_skin=0.1"])

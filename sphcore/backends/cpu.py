@@ -184,7 +184,7 @@ class CpuStages(Engine):
         if not grid.skin:
             grid.build_neighbours(s.x, s.n_owned, rows)
             return
-        if not grid.reusing:
+        if not grid.reusing or grid.restoring:
             grid.build_candidates(s.extra["x_ref"], s.n_owned, rows)
         grid.filter_neighbours(s.x, s.n_owned, rows)
 

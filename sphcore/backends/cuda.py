@@ -419,6 +419,8 @@ class DeviceGrid:
         self.ncells = host.ncells
         self.reach = host.reach
         self.periodic = host.periodic
+        self.skin = 0.0  # no reused lists on the device (scene.list_skin): a build every step
+        self.builds = self.reuses = 0
         self.capacity = capacity
         self.d_origin = cuda.to_device(host.origin)
         self.d_cell = cuda.to_device(host.cell)
