@@ -457,8 +457,8 @@ def build_parser() -> argparse.ArgumentParser:
                             "side by side with their ratio (default: lists)")
     bench.add_argument("--skins", type=_skin, nargs="+", default=[-1.0],
                        help="run.neighbour_skin of each case (also of --peers runs): 0 builds the lists every step, "
-                            "0.1 reuses them until a particle moves 0.45 x 0.1 H, -1 is the scene's automatic "
-                            "choice (0.1 for WCSPH on the CPU); e.g. --skins 0 0.1 times both side by side with "
+                            "0.2 reuses them until a particle moves 0.45 x 0.2 H, -1 is the scene's automatic "
+                            "choice (0.2 for WCSPH on the CPU); e.g. --skins 0 0.2 times both side by side with "
                             "their ratio (default: -1)")
     bench.add_argument("--after", type=_steps, default=0, metavar="STEPS",
                        help="run STEPS untimed steps before the timed ones, so that the flow has developed (the "

@@ -450,6 +450,8 @@ class PeerHalo:
                 check = self._moved_check(sim, q, check, lo, hi)
             msg = yield from self.transport.recv(q, (step, phase), check)
             engine.set_rows({k: msg[k] for k in names}, np.arange(lo, hi))
+            if phase == MOVED:
+                self.ghosts_received += hi - lo  # exchange 1's rows: the halo's minimum traffic counts them
 
     def split_rows(self, sim, phase):
         """While ``phase`` is on its way: (interior, boundary), the owned rows out of reach of every

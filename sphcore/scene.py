@@ -338,7 +338,7 @@ class Run:
                                   choices=(0, 1, 2), control=AT_START)
     neighbour_skin: float = spec(-1.0, "Verlet lists: build the lists out to H (1 + skin) and reuse them, filtered to H, "
                                        "until some particle has moved 0.45 skin H (0 = build every step; -1 = auto: "
-                                       "0.1 for WCSPH with lists on the CPU backend, else 0; DFSPH's steps move "
+                                       "0.2 for WCSPH with lists on the CPU backend, else 0; DFSPH's steps move "
                                        "particles too far for a reuse to pay). The same neighbours each step, summed "
                                        "in the order of the last build: the last bits differ from a skin of 0; N "
                                        "peers and a resumed run keep one process's bits (docs/BENCHMARKS.md)",
@@ -1470,7 +1470,8 @@ def bytes_per_particle(s: Scene, backend: str = "cpu") -> int:
             + skin_bytes(s, backend))
 
 
-AUTO_SKIN = 0.1  # run.neighbour_skin = -1 where a reuse pays (docs/BENCHMARKS.md, "Verlet lists")
+AUTO_SKIN = 0.2  # run.neighbour_skin = -1 where a reuse pays; 0.2 beat 0.1 on the developed dam break
+                 # (docs/BENCHMARKS.md, "Verlet lists")
 
 
 def _period(s: Scene, d: int) -> float:
@@ -1481,8 +1482,8 @@ def _period(s: Scene, d: int) -> float:
 
 def list_skin(s: Scene, backend: str = "cpu") -> float:
     """The run's list skin (run.neighbour_skin, -1 resolved): AUTO_SKIN for WCSPH with lists on the
-    CPU backend, else 0 (DFSPH's steps move particles ~0.2 spacings, more than a skin of 0.1 H lets
-    through: its lists would be built, larger, every step); 0 too where a periodic axis is shorter
+    CPU backend, else 0 (DFSPH's steps move particles ~0.2 spacings, as far in one step as a skin of
+    0.2 H lets them: its lists would be built, larger, every step); 0 too where a periodic axis is shorter
     than 3 H (1 + AUTO_SKIN) (the lists' cells must tile the period)."""
     if s.run.neighbour_skin >= 0.0:
         return s.run.neighbour_skin
@@ -1495,13 +1496,15 @@ def list_skin(s: Scene, backend: str = "cpu") -> float:
 
 
 def skin_bytes(s: Scene, backend: str = "cpu") -> int:
-    """Per particle, what reused lists add (run.neighbour_skin): the candidate lists (int32, the
-    default list capacity of 64 grown by (1 + skin)^dim, plus a spare column) and the reference
-    positions (3 x 8 B at most)."""
+    """Per particle, what reused lists add (run.neighbour_skin): the candidate lists (int32: the
+    default list capacity of 64 grown by (1 + skin)^dim, with the builder's 25 % + 8 of headroom and
+    its spare column) and the reference positions (3 x 8 B at most). Measured: 513 B a particle more
+    at a skin of 0.2 on the 3D dam break at 197,676 particles, float32, its flow developed
+    (docs/BENCHMARKS.md); this gives 612."""
     skin = list_skin(s, backend)
     if not skin:
         return 0
-    return int(4 * (64 * (1.0 + skin) ** s.dim + 1)) + 24
+    return int(4 * (1.25 * 64 * (1.0 + skin) ** s.dim + 9)) + 24
 
 
 def block_estimate(block: Block, dim: int, dx: float) -> float:
