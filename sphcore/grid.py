@@ -452,62 +452,53 @@ def _build_neighbour_rows(periodic, x, rows, contiguous, cell_begin, cell_end, o
                       reach, period, H2, nbr, counts)
 
 
+@njit(cache=True, inline="always")
+def wrapped(periodic, dx, dy, dz, period):
+    """(dx, dy, dz) with the minimum image on the periodic axes (as _scan_span takes it)."""
+    if periodic:
+        if period[0] > 0.0:
+            dx = minimum_image(dx, period[0])
+        if period[1] > 0.0:
+            dy = minimum_image(dy, period[1])
+        if period[2] > 0.0:
+            dz = minimum_image(dz, period[2])
+    return dx, dy, dz
+
+
+@njit(cache=True, inline="always")
+def filter_row(periodic, i, x, cand, cand_counts, period, H2, nbr, counts):
+    """Row i's neighbour list from its candidate list (a skin's Verlet list): every candidate j within
+    H of row i now (the separation as neighbour_row computes it), in the candidates' order.
+    Branch-free stores, as _scan_span's (the last column of ``nbr`` is the spare)."""
+    cap = nbr.shape[1] - 1
+    xi, yi, zi = x[i, 0], x[i, 1], x[i, 2]
+    count = 0
+    for k in range(cand_counts[i]):
+        j = cand[i, k]
+        dx, dy, dz = wrapped(periodic, xi - x[j, 0], yi - x[j, 1], zi - x[j, 2], period)
+        inside = dx * dx + dy * dy + dz * dz < H2
+        nbr[i, min(count, cap)] = j
+        count += 1 if inside else 0
+    counts[i] = count
+
+
 @literal_dispatch(1)
 @njit(cache=True, parallel=True)
 def _filter_neighbours(periodic, x, n_query, cand, cand_counts, period, H2, nbr, counts):
-    """Neighbour lists of rows 0..n_query-1 from their candidate lists (a skin's Verlet lists): every
-    candidate j within H of row i now (the separation as neighbour_row computes it), in the candidates'
-    order. Branch-free stores, as _scan_span's (the last column of ``nbr`` is the spare)."""
+    """Neighbour lists of rows 0..n_query-1 from their candidates (filter_row)."""
     literally(periodic)
-    cap = nbr.shape[1] - 1
-    for i0 in prange(n_query):
-        i = np.int64(i0)  # as in _build_neighbours: no float64 index arithmetic
-        xi, yi, zi = x[i, 0], x[i, 1], x[i, 2]
-        count = 0
-        for k in range(cand_counts[i]):
-            j = cand[i, k]
-            dx = xi - x[j, 0]
-            dy = yi - x[j, 1]
-            dz = zi - x[j, 2]
-            if periodic:
-                if period[0] > 0.0:
-                    dx = minimum_image(dx, period[0])
-                if period[1] > 0.0:
-                    dy = minimum_image(dy, period[1])
-                if period[2] > 0.0:
-                    dz = minimum_image(dz, period[2])
-            inside = dx * dx + dy * dy + dz * dz < H2
-            nbr[i, min(count, cap)] = j
-            count += 1 if inside else 0
-        counts[i] = count
+    for i in prange(n_query):
+        # np.int64: as in _build_neighbours, no float64 index arithmetic
+        filter_row(periodic, np.int64(i), x, cand, cand_counts, period, H2, nbr, counts)
 
 
 @literal_dispatch(1)
 @njit(cache=True, parallel=True)
 def _filter_neighbour_rows(periodic, x, rows, cand, cand_counts, period, H2, nbr, counts):
-    """_filter_neighbours for the rows ``rows`` only (a peer's interior rows, then its boundary rows)."""
+    """Neighbour lists of the rows ``rows`` only (a peer's interior rows, then its boundary rows)."""
     literally(periodic)
-    cap = nbr.shape[1] - 1
     for k in prange(rows.shape[0]):
-        i = rows[k]
-        xi, yi, zi = x[i, 0], x[i, 1], x[i, 2]
-        count = 0
-        for c in range(cand_counts[i]):
-            j = cand[i, c]
-            dx = xi - x[j, 0]
-            dy = yi - x[j, 1]
-            dz = zi - x[j, 2]
-            if periodic:
-                if period[0] > 0.0:
-                    dx = minimum_image(dx, period[0])
-                if period[1] > 0.0:
-                    dy = minimum_image(dy, period[1])
-                if period[2] > 0.0:
-                    dz = minimum_image(dz, period[2])
-            inside = dx * dx + dy * dy + dz * dz < H2
-            nbr[i, min(count, cap)] = j
-            count += 1 if inside else 0
-        counts[i] = count
+        filter_row(periodic, rows[k], x, cand, cand_counts, period, H2, nbr, counts)
 
 
 @literal_dispatch(1)
@@ -522,16 +513,8 @@ def _max_displacement2(periodic, x, x_ref, n, period, chunks):
         hi = (c + 1) * n // k
         most = 0.0
         for i in range(lo, hi):
-            dx = x[i, 0] - x_ref[i, 0]
-            dy = x[i, 1] - x_ref[i, 1]
-            dz = x[i, 2] - x_ref[i, 2]
-            if periodic:
-                if period[0] > 0.0:
-                    dx = minimum_image(dx, period[0])
-                if period[1] > 0.0:
-                    dy = minimum_image(dy, period[1])
-                if period[2] > 0.0:
-                    dz = minimum_image(dz, period[2])
+            dx, dy, dz = wrapped(periodic, x[i, 0] - x_ref[i, 0], x[i, 1] - x_ref[i, 1], x[i, 2] - x_ref[i, 2],
+                                 period)
             d2 = np.float64(dx) * dx + np.float64(dy) * dy + np.float64(dz) * dz
             if d2 > most:
                 most = d2

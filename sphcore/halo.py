@@ -469,35 +469,32 @@ class PeerHalo:
         """Which of the points x (n, 3) lie in this peer's block (the cells it owns)."""
         return self.dec.owner(sim.grid.cells_of(x)) == self.rank
 
-    def reduce_sum(self, sim, phase, value: int):
-        """Global sum of an integer (exact, so every peer gets the same total in any order); the
-        DFSPH solvers' error in 2^-32 units. ``phase`` names the message (unique within a step)."""
+    def _reduce_one(self, sim, phase, key, value, dtype):
+        """Generator: ``value`` and every other peer's value of ``phase`` (a one-element ``dtype`` array
+        ``key``), this peer's first, then the others' in rank order."""
         step = sim.step_index
-        message = {"sum": np.array([value], dtype=np.int64)}
+        message = {key: np.array([value], dtype=dtype)}
         for q in self.others:
             self._send(q, (step, phase), message, "reduce")
-        total = int(value)
-        expected = {"sum": ((1,), np.int64)}
+        values = [value]
+        expected = {key: ((1,), dtype)}
         for q in self.others:
             msg = yield from self.transport.recv(
                 q, (step, phase), lambda m, q=q: expect_arrays(m, expected, f"{phase} from peer {q}"))
-            total += int(msg["sum"][0])
-        return total
+            values.append(msg[key][0])
+        return values
+
+    def reduce_sum(self, sim, phase, value: int):
+        """Global sum of an integer (exact, so every peer gets the same total in any order); the
+        DFSPH solvers' error in 2^-32 units. ``phase`` names the message (unique within a step)."""
+        values = yield from self._reduce_one(sim, phase, "sum", value, np.int64)
+        return sum(int(v) for v in values)
 
     def reduce_max_value(self, sim, phase, value: float):
         """Global max of one finite float64 (every peer gets the same): whether every peer's lists
         still hold (Simulation._reuse_lists)."""
-        step = sim.step_index
-        message = {"max": np.array([value], dtype=np.float64)}
-        for q in self.others:
-            self._send(q, (step, phase), message, "reduce")
-        result = float(value)
-        expected = {"max": ((1,), np.float64)}
-        for q in self.others:
-            msg = yield from self.transport.recv(
-                q, (step, phase), lambda m, q=q: expect_arrays(m, expected, f"{phase} from peer {q}"))
-            result = max(result, float(msg["max"][0]))
-        return result
+        values = yield from self._reduce_one(sim, phase, "max", value, np.float64)
+        return max(float(v) for v in values)
 
     def reduce_sums(self, sim, phase, values, step=None):
         """Global sums of an int64 vector (exact and order independent, like ``reduce_sum``): the
