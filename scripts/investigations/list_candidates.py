@@ -17,6 +17,8 @@ from sphcore import grid as G
 from sphcore.scene import load_scene
 from sphcore.solver import Simulation
 
+NO_SKIN = ["run.neighbour_skin=0"]  # a list a step, as measured when this was written (grid.py)
+
 
 @njit(parallel=True)
 def count(x, n, cell_begin, cell_end, origin, cell, inv_cell, ncell, reach, H2, candidates, ranges):
@@ -66,7 +68,7 @@ def main():
     a = ap.parse_args()
     numba.set_num_threads(1)
     dx = spacing_for(DEFAULT_SCENE, 49152)
-    sim = Simulation(load_scene(DEFAULT_SCENE, _fixed(DEFAULT_SCENE, dx)), "f32", "cpu")
+    sim = Simulation(load_scene(DEFAULT_SCENE, _fixed(DEFAULT_SCENE, dx) + NO_SKIN), "f32", "cpu")
     for target in sorted(a.steps):
         while sim.step_index < target:
             sim.step()

@@ -96,7 +96,7 @@ def main():
     a = ap.parse_args()
     numba.set_num_threads(1)
     dx = spacing_for(DEFAULT_SCENE, 49152)
-    scene = load_scene(DEFAULT_SCENE, _fixed(DEFAULT_SCENE, dx) + ["decomposition.balance_every=0"] + a.set)
+    scene = load_scene(DEFAULT_SCENE, _fixed(DEFAULT_SCENE, dx) + ["decomposition.balance_every=0", "run.neighbour_skin=0"] + a.set)
     instrument()
     cluster = InProcessCluster(scene, 2, "f32")
     wall = timed_steps(cluster.step, a.steps)
