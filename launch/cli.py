@@ -571,6 +571,18 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def _lists_text(scene) -> str:
+    """How sph scene says the neighbours are found (on the CPU backend, where it reports)."""
+    from sphcore.scene import list_skin
+    if scene.run.neighbours == "walk":
+        return "no lists: every pass walks the cells"
+    skin = list_skin(scene)
+    if not skin:
+        return "lists built every step"
+    auto = " (run.neighbour_skin = -1: auto)" if scene.run.neighbour_skin < 0 else ""
+    return f"lists reused within a skin of {skin:g} H{auto}"
+
+
 def _cmd_scene(args) -> int:
     from sphcore.initial import scene_report
     from sphcore.scene import load_scene, scene_toml, size_text
@@ -593,7 +605,7 @@ def _cmd_scene(args) -> int:
         f"  memory        about {size_text(report['memory'])} of arrays in one process ({report['cells']:.3g} grid "
         "cells; Python and its libraries: ~260 MB more)",
         f"  neighbours    about {report['neighbours']} per particle in the bulk (support {scene.sph.support:g} "
-        f"spacings, {scene.sph.kernel})",
+        f"spacings, {scene.sph.kernel}); {_lists_text(scene)}",
         f"  first dt      {report['dt']:.3g} s ({report['dt_limit']} limit; time.mode = {scene.time.mode}, "
         f"cfl {scene.time.cfl:g})",
         f"  solver        {scene.sph.solver}, {scene.sph.density} density, {scene.sph.viscosity} viscosity, "
