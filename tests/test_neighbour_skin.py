@@ -251,6 +251,7 @@ def test_the_interior_rows_run_while_moved_ghosts_travel_and_overlap_off_gives_t
         assert np.array_equal(runs["true"][1][key], runs["false"][1][key]), key
 
 
+@pytest.mark.slow  # 45 s: the default suite is at its time budget
 @pytest.mark.parametrize("sets", [["sph.solver='dfsph'"], ["sph.density='continuity'", "terms.shifting=0.1"]],
                          ids=["dfsph", "continuity-shifting"])
 def test_a_set_skin_keeps_two_peers_bitwise_with_dfsph_and_the_carried_density(sets):
