@@ -143,7 +143,7 @@ def bench_case(scene_path: Path, dx: float, precision: str, threads: int, steps:
         "particles": sim.n_particles, "dx": dx, "steps": steps, "dt": sim.dt, "wall_s": wall,
         "particle_steps_per_s": sim.n_particles * steps / wall, "steps_per_s": steps / wall, "first_step_s": first,
         "neighbours": sim.neighbours_sum / max(sim.state.n_owned, 1), "neighbour_search": neighbours,
-        "cells_per_support": sim.grid.reach, "neighbour_skin": sim.grid.skin, "after_steps": after, "t_start": sim.t - steps * sim.dt,
+        "cells_per_support": sim.grid.reach, "neighbour_skin": sim.grid.skin, "after_steps": after,
         "list_builds": (sim.grid.builds - builds) if sim.grid.skin else steps,
         "stage_median_s": stages, "stage_total_s": {k: v["total_s"] for k, v in timed.items()},
         "untimed_s_per_step": untimed,

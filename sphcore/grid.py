@@ -105,6 +105,20 @@ def minimum_image(d, L):
     return d
 
 
+@njit(cache=True, inline="always")
+def wrapped(periodic, dx, dy, dz, period):
+    """(dx, dy, dz) with the minimum image on the periodic axes: the one separation of the
+    list builder, the candidate filter and the displacement check."""
+    if periodic:
+        if period[0] > 0.0:
+            dx = minimum_image(dx, period[0])
+        if period[1] > 0.0:
+            dy = minimum_image(dy, period[1])
+        if period[2] > 0.0:
+            dz = minimum_image(dz, period[2])
+    return dx, dy, dz
+
+
 @njit(cache=True, parallel=True)
 def compute_cell_keys(x, n_owned, origin, inv_cell, ncell, keys):
     """keys[i] = cell key of row i, plus ncells for ghost rows (i >= n_owned): sorting by key puts
@@ -284,16 +298,7 @@ def _scan_span(store_all, i, lo, hi, x, xi, yi, zi, H2, period, periodic, nbr, c
     only neighbours are stored: there a store per candidate is a scattered write for every lane of a
     warp, about four times the list's own writes. The lists are the same either way."""
     for j in range(lo, hi):
-        dx = xi - x[j, 0]
-        dy = yi - x[j, 1]
-        dz = zi - x[j, 2]
-        if periodic:
-            if period[0] > 0.0:
-                dx = minimum_image(dx, period[0])
-            if period[1] > 0.0:
-                dy = minimum_image(dy, period[1])
-            if period[2] > 0.0:
-                dz = minimum_image(dz, period[2])
+        dx, dy, dz = wrapped(periodic, xi - x[j, 0], yi - x[j, 1], zi - x[j, 2], period)
         inside = dx * dx + dy * dy + dz * dz < H2
         if store_all:
             nbr[i, min(count, cap)] = j
@@ -450,19 +455,6 @@ def _build_neighbour_rows(periodic, x, rows, contiguous, cell_begin, cell_end, o
     for k in prange(rows.shape[0]):
         neighbour_row(periodic, True, rows[k], x, contiguous, cell_begin, cell_end, origin, cell, inv_cell, ncell,
                       reach, period, H2, nbr, counts)
-
-
-@njit(cache=True, inline="always")
-def wrapped(periodic, dx, dy, dz, period):
-    """(dx, dy, dz) with the minimum image on the periodic axes (as _scan_span takes it)."""
-    if periodic:
-        if period[0] > 0.0:
-            dx = minimum_image(dx, period[0])
-        if period[1] > 0.0:
-            dy = minimum_image(dy, period[1])
-        if period[2] > 0.0:
-            dz = minimum_image(dz, period[2])
-    return dx, dy, dz
 
 
 @njit(cache=True, inline="always")
