@@ -70,3 +70,55 @@ def test_the_process_that_compiles_the_kernels_gets_the_bits_of_every_process_th
     a, b = np.load(tmp_path / "cold" / "final.npz"), np.load(tmp_path / "warm" / "final.npz")
     for key in ("id", "x", "v", "rho"):
         assert np.array_equal(a[key], b[key]), key
+
+
+PROBE = '''
+import numba
+
+from sphcore.backends.literal import literal_dispatch
+
+
+@literal_dispatch(1)
+@numba.njit(cache=True)
+def scaled(k, x):
+    return x * k
+'''
+
+COUNT_COMPILES = '''
+import sys, time
+sys.path.insert(0, sys.argv[1])
+from sphcore.backends import literal
+import probe_module
+compiled = []
+real = literal._compile_elsewhere
+
+
+def slowly(dispatcher, sig):  # a compile that lasts: every process starts before the first is done
+    compiled.append(sig)
+    time.sleep(3.0)
+    real(dispatcher, sig)
+
+
+literal._compile_elsewhere = slowly
+assert probe_module.scaled(3, 2.0) == 6.0
+print(len(compiled))
+'''
+
+
+def test_processes_that_miss_the_same_kernel_at_once_compile_it_once_between_them(tmp_path):
+    # Given a literal-dispatched kernel no cache holds, and three processes calling it at once (as the
+    # peers of a run started cold do), each compile taking seconds
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+    root = Path(__file__).resolve().parent.parent
+    (tmp_path / "probe_module.py").write_text(PROBE)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    runs = [subprocess.Popen([sys.executable, "-c", COUNT_COMPILES, str(tmp_path)], cwd=root, env=env,
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for _ in range(3)]
+    outs = [run.communicate(timeout=300) for run in runs]
+    # Then each got its answer, and one of them compiled it; the others waited and loaded it
+    assert all(run.returncode == 0 for run in runs), [err[-2000:] for _, err in outs]
+    assert sum(int(out.strip().splitlines()[-1]) for out, _ in outs) == 1, outs
+    assert not any("compiled in this process" in err for _, err in outs)
