@@ -16,7 +16,7 @@ from nodes.peer import decomposition_for, take_block
 from nodes.transport import InProcessNetwork
 from sphcore.halo import PeerHalo
 from sphcore.state import merge_by_id
-from sphcore.solver import Simulation
+from sphcore.solver import Simulation, SimulationError
 
 
 class DeadlockError(RuntimeError):
@@ -27,9 +27,17 @@ def _drive(generators, max_rounds: int = 100, network: InProcessNetwork | None =
     """Resume the generators in turn until all are exhausted. A step needs a handful of rounds (one
     per exchange); many more means the peers wait for messages nobody sends. With ``network`` the
     rounds are not counted (a whole run takes many): a round in which no peer sent anything and
-    none finished is the deadlock, since a peer yields only for a message that is not there yet."""
+    none finished is the deadlock, since a peer yields only for a message that is not there yet.
+
+    A peer that stops (SimulationError: a health stop, which every peer decides alike at the same
+    step) leaves the others to reach their own stop, as separate processes would, so that rank 0
+    writes what it writes when it stops whichever peer got there first; then the lowest rank's stop
+    is raised (rank 0's, which names its own particles, as its summary.json does), also where the
+    others wait for a stopped peer instead."""
     live = list(generators)
+    rank = {id(gen): r for r, gen in enumerate(live)}
     rounds = 0
+    stops = {}
     while live:
         sends = network.sends if network is not None else None
         finished = False
@@ -39,13 +47,24 @@ def _drive(generators, max_rounds: int = 100, network: InProcessNetwork | None =
             except StopIteration:
                 live.remove(gen)
                 finished = True
+            except SimulationError as e:
+                live.remove(gen)
+                finished = True
+                stops[rank[id(gen)]] = e
         rounds += 1
         if not live:
-            return
+            break
+        deadlock = None
         if network is None and rounds >= max_rounds:
-            raise DeadlockError(f"in-process peers still waiting after {max_rounds} rounds: a message was never sent")
+            deadlock = f"in-process peers still waiting after {max_rounds} rounds: a message was never sent"
         if network is not None and network.sends == sends and not finished:
-            raise DeadlockError("in-process peers all wait for messages nobody sends")
+            deadlock = "in-process peers all wait for messages nobody sends"
+        if deadlock:
+            if stops:
+                raise stops[min(stops)]
+            raise DeadlockError(deadlock)
+    if stops:
+        raise stops[min(stops)]
 
 
 class InProcessCluster:
