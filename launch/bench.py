@@ -171,16 +171,18 @@ def _until_overrides(scene_path: Path, dx: float, solver: str) -> list[str]:
     return over
 
 
-def bench_until_case(scene_path: Path, dx: float, precision: str, threads: int, solver: str, until: float) -> dict:
+def bench_until_case(scene_path: Path, dx: float, precision: str, threads: int, solver: str, until: float,
+                     skin: float = -1.0) -> dict:
     """Simulated seconds per wall second: ``solver`` steps the scene from rest to ``until`` seconds with
-    its adaptive step; the clock starts after the first step (compile or cache load)."""
+    its adaptive step; the clock starts after the first step (compile or cache load). ``skin``:
+    run.neighbour_skin."""
     numba.set_num_threads(threads)
-    scene = load_scene(scene_path, _until_overrides(scene_path, dx, solver))
+    scene = load_scene(scene_path, _until_overrides(scene_path, dx, solver) + [f"run.neighbour_skin={skin!r}"])
     sim = Simulation(scene, precision)
     t0 = time.perf_counter()
     sim.step()
     first = time.perf_counter() - t0
-    t_start, step_start = sim.t, sim.step_index
+    t_start, step_start, builds = sim.t, sim.step_index, sim.grid.builds
     sim.timers.reset()
     t0 = time.perf_counter()
     while sim.t < until:
@@ -198,14 +200,16 @@ def bench_until_case(scene_path: Path, dx: float, precision: str, threads: int, 
         "neighbours": sim.neighbours_sum / max(sim.state.n_owned, 1), "solves": solves,
         "limits": {k: v for k, v in sim.limit_counts.items() if v}, "leaks": sim.leaks,
         "stage_total_s": {k: v["total_s"] for k, v in sim.timers.summary().items()},
+        "neighbour_skin": sim.grid.skin, "list_builds": (sim.grid.builds - builds) if sim.grid.skin else steps,
     }
 
 
 def _until_row(r: dict) -> str:
     solves = "".join(f" {name}={s['iterations_per_step']:.1f}it/step" for name, s in r.get("solves", {}).items())
+    skin = f" skin={r['neighbour_skin']:g} ({r['list_builds']} builds)" if r.get("neighbour_skin") else ""
     return (f"{r['code']:>13} {r['method']:>6} {r.get('precision', 'f64'):>4} threads={r['threads']} "
             f"N={r['particles']:>8} to t={r['until_s']:g} s: {r['steps']:>6} steps, mean dt {r['mean_dt']:.2e} s, "
-            f"{r['wall_s']:7.1f} s wall, {r['sim_s_per_wall_s']:.4f} simulated s per wall s{solves}")
+            f"{r['wall_s']:7.1f} s wall, {r['sim_s_per_wall_s']:.4f} simulated s per wall s{solves}{skin}")
 
 
 def _until_cases(scene_path: Path, dx: float, args) -> list[dict]:
@@ -216,9 +220,10 @@ def _until_cases(scene_path: Path, dx: float, args) -> list[dict]:
     for solver in args.solvers:
         for precision in args.precisions:
             for threads in args.threads:
-                r = bench_until_case(scene_path, dx, precision, threads, solver, args.until)
-                out.append(r)
-                print(_until_row(r), flush=True)
+                for skin in args.skins:
+                    r = bench_until_case(scene_path, dx, precision, threads, solver, args.until, skin)
+                    out.append(r)
+                    print(_until_row(r), flush=True)
     if args.external:
         from launch.external.runner import available
         if not available("splishsplash"):
@@ -239,7 +244,8 @@ def _print_until_ratios(results: list[dict]):
     for t in theirs:
         for o in ours:
             if o["threads"] == t["threads"] and abs(o["dx"] - t["dx"]) < 1e-12:
-                print(f"  ours {o['method']} {o['precision']} vs {t['code']} {t['method']} threads={t['threads']} "
+                skin = f" skin={o['neighbour_skin']:g}" if o.get("neighbour_skin") else ""
+                print(f"  ours {o['method']} {o['precision']}{skin} vs {t['code']} {t['method']} threads={t['threads']} "
                       f"N={o['particles']}/{t['particles']}: {o['sim_s_per_wall_s'] / t['sim_s_per_wall_s']:.2f}x "
                       f"({o['steps']} / {t['steps']} steps)")
 
@@ -276,6 +282,7 @@ def run_bench(args) -> int:
             results += _peer_cases(scene_path, dx, args)
     budget = []
     if args.until is not None:
+        _print_skin_ratios(results)
         _print_until_ratios(results)
     elif not args.network:
         _print_walk_ratios(results)
@@ -422,17 +429,18 @@ def _print_walk_ratios(results: list[dict]):
 
 
 def _print_skin_ratios(results: list[dict]):
-    """Reused lists / a list a step, the same case side by side (sph bench --skins 0 0.1)."""
-    same = ("precision", "threads", "backend", "particles", "neighbour_search")
+    """Reused lists / a list a step, the same case side by side (sph bench --skins 0 0.1): in
+    particle-steps per second, or with --until in simulated seconds per wall second."""
+    same = ("method", "precision", "threads", "backend", "particles", "neighbour_search", "until_s")
     one = [r for r in results if r.get("code") == "sphfluid" and "peers" not in r]
     pairs = [(s, z) for s in one if s.get("neighbour_skin") for z in one
              if z.get("neighbour_skin") == 0.0 and all(z.get(k) == s.get(k) for k in same)]
     if pairs:
         print("\nreused lists (run.neighbour_skin) / a list a step (same case, same run):")
     for s, z in pairs:
-        print(f"  {s['precision']} threads={s['threads']} N={s['particles']} skin={s['neighbour_skin']:g}: "
-              f"{s['particle_steps_per_s'] / z['particle_steps_per_s']:.3f}x ({s['list_builds']} list builds in "
-              f"{s['steps']} steps)")
+        speed = "sim_s_per_wall_s" if "until_s" in s else "particle_steps_per_s"
+        print(f"  {s['method']} {s['precision']} threads={s['threads']} N={s['particles']} skin={s['neighbour_skin']:g}: "
+              f"{s[speed] / z[speed]:.3f}x ({s['list_builds']} list builds in {s['steps']} steps)")
 
 
 def _print_ratios(results: list[dict]):

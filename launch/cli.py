@@ -458,8 +458,8 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--skins", type=_skin, nargs="+", default=[-1.0],
                        help="run.neighbour_skin of each case (also of --peers runs): 0 builds the lists every step, "
                             "0.2 reuses them until a particle moves 0.45 x 0.2 H, -1 is the scene's automatic "
-                            "choice (0.2 for WCSPH on the CPU); e.g. --skins 0 0.2 times both side by side with "
-                            "their ratio (default: -1)")
+                            "choice (0.2 for WCSPH, 0.45 for DFSPH, on the CPU); e.g. --skins 0 0.2 times both "
+                            "side by side with their ratio; with --until each solver runs each skin (default: -1)")
     bench.add_argument("--after", type=_steps, default=0, metavar="STEPS",
                        help="run STEPS untimed steps before the timed ones, so that the flow has developed (the "
                             "timed steps otherwise start from rest, where lists are cheapest to build and to "
@@ -731,11 +731,10 @@ def _check_bench(args):
     if args.after and (args.external or args.peers != [1] or args.until is not None or args.network):
         raise UsageError(f"--after {args.after}: the other codes and the peer runs start from rest, so --after "
                          "does not combine with --external, --peers, --until or --network")
-    if any(s > 0 for s in args.skins) and (args.network or args.backend != "cpu" or args.until is not None
-                            or "walk" in args.neighbours):
+    if any(s > 0 for s in args.skins) and (args.network or args.backend != "cpu" or "walk" in args.neighbours):
         raise UsageError(f"--skins {' '.join(f'{s:g}' for s in args.skins)}: reused lists are timed on the CPU "
-                         "backend with lists (not with --network, --backend cuda, --until or --neighbours walk; "
-                         "-1 or 0 there)")
+                         "backend with lists (not with --network, --backend cuda or --neighbours walk; -1 or 0 "
+                         "there)")
     if args.until is not None:
         if args.network or args.backend != "cpu" or args.peers != [1] or args.neighbours != ["lists"]:
             raise UsageError("--until times one CPU process with neighbour lists: it does not combine with "

@@ -338,8 +338,8 @@ class Run:
                                   choices=(0, 1, 2), control=AT_START)
     neighbour_skin: float = spec(-1.0, "Verlet lists: build the lists out to H (1 + skin) and reuse them, filtered to H, "
                                        "until some particle has moved 0.45 skin H (0 = build every step; -1 = auto: "
-                                       "0.2 for WCSPH with lists on the CPU backend, else 0; DFSPH's steps move "
-                                       "particles too far for a reuse to pay). The same neighbours each step, summed "
+                                       "with lists on the CPU backend 0.2 for WCSPH and 0.45 for DFSPH, whose steps "
+                                       "move particles farther; else 0). The same neighbours each step, summed "
                                        "in the order of the last build: the last bits differ from a skin of 0; N "
                                        "peers and a resumed run keep one process's bits (docs/BENCHMARKS.md)",
                                  range=(-1.0, 1.0), control=AT_START)
@@ -1470,8 +1470,11 @@ def bytes_per_particle(s: Scene, backend: str = "cpu") -> int:
             + skin_bytes(s, backend))
 
 
-AUTO_SKIN = 0.2  # run.neighbour_skin = -1 where a reuse pays; 0.2 beat 0.1 on the developed dam break
-                 # (docs/BENCHMARKS.md, "Verlet lists")
+# run.neighbour_skin = -1, by solver, where a reuse pays (docs/BENCHMARKS.md, "Verlet lists"): WCSPH 0.2,
+# which beat 0.1 on the developed dam break; DFSPH 0.45: its steps move the fastest particles ~0.2
+# spacings (the displacement limit), so a build comes every ~3 steps (0.3: every 2nd; 0.6: the larger
+# candidate lists cost more than they save): 51.5 against 54.6 ms a step to t = 0.5 s at 49k, 2 threads
+AUTO_SKIN = {"wcsph": 0.2, "dfsph": 0.45}
 
 
 def _period(s: Scene, d: int) -> float:
@@ -1481,18 +1484,18 @@ def _period(s: Scene, d: int) -> float:
 
 
 def list_skin(s: Scene, backend: str = "cpu") -> float:
-    """The run's list skin (run.neighbour_skin, -1 resolved): AUTO_SKIN for WCSPH with lists on the
-    CPU backend, else 0 (DFSPH's steps move particles ~0.2 spacings, as far in one step as a skin of
-    0.2 H lets them: its lists would be built, larger, every step); 0 too where a periodic axis is shorter
-    than 3 H (1 + AUTO_SKIN) (the lists' cells must tile the period)."""
+    """The run's list skin (run.neighbour_skin, -1 resolved): the solver's AUTO_SKIN with lists on the
+    CPU backend, else 0 (the GPU and the cell walk have no skin); 0 too where a periodic axis is shorter
+    than 3 H (1 + skin) (the lists' cells must tile the period)."""
     if s.run.neighbour_skin >= 0.0:
         return s.run.neighbour_skin
-    if not (s.sph.solver == "wcsph" and s.run.neighbours == "lists" and backend == "cpu"):
+    if not (s.run.neighbours == "lists" and backend == "cpu"):
         return 0.0
+    skin = AUTO_SKIN[s.sph.solver]
     H = s.sph.support * s.particles.spacing
-    if any(s.domain.periodic[d] and _period(s, d) < 3.0 * H * (1.0 + AUTO_SKIN) for d in range(s.dim)):
+    if any(s.domain.periodic[d] and _period(s, d) < 3.0 * H * (1.0 + skin) for d in range(s.dim)):
         return 0.0
-    return AUTO_SKIN
+    return skin
 
 
 def skin_bytes(s: Scene, backend: str = "cpu") -> int:

@@ -29,8 +29,8 @@ def test_the_figure_comes_from_the_case_nearest_a_16_67_ms_step_per_backend():
 def test_bench_until_steps_each_solver_from_rest_to_the_end_time_and_compares_like_with_like(capsys):
     """sph bench --until: the clock runs from the end of the first step to exactly T, DFSPH runs at the
     reference code's tolerances and reports its iterations, and the ratio pairs the same dx and threads."""
-    from launch.bench import (DEFAULT_SCENE, DFSPH_DENSITY_TOLERANCE, _print_until_ratios, _until_overrides,
-                              bench_until_case, spacing_for)
+    from launch.bench import (DEFAULT_SCENE, DFSPH_DENSITY_TOLERANCE, _print_skin_ratios, _print_until_ratios,
+                              _until_overrides, bench_until_case, spacing_for)
     dx = spacing_for(DEFAULT_SCENE, 600)
     assert f"sph.density_tolerance={DFSPH_DENSITY_TOLERANCE!r}" in _until_overrides(DEFAULT_SCENE, dx, "dfsph")
     assert not any("tolerance" in kv for kv in _until_overrides(DEFAULT_SCENE, dx, "wcsph"))
@@ -51,3 +51,11 @@ def test_bench_until_steps_each_solver_from_rest_to_the_end_time_and_compares_li
     _print_until_ratios([runs["dfsph"], dict(runs["dfsph"], dx=2 * dx), theirs])
     out = capsys.readouterr().out
     assert out.count("vs splishsplash dfsph") == 1 and "2.00x" in out, out
+    # --skins: DFSPH reuses its lists with its automatic skin, and a list a step is timed beside it
+    assert runs["dfsph"]["neighbour_skin"] == 0.45 and runs["dfsph"]["list_builds"] < runs["dfsph"]["steps"]
+    plain = bench_until_case(DEFAULT_SCENE, dx, "f64", 1, "dfsph", until, skin=0.0)
+    assert plain["neighbour_skin"] == 0.0 and plain["list_builds"] == plain["steps"]
+    _print_skin_ratios([runs["dfsph"], plain, runs["wcsph"]])
+    out = capsys.readouterr().out
+    ratio = runs["dfsph"]["sim_s_per_wall_s"] / plain["sim_s_per_wall_s"]
+    assert out.count("skin=0.45:") == 1 and f"{ratio:.3f}x" in out and "wcsph" not in out, out

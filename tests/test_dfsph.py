@@ -80,15 +80,20 @@ def test_stored_pair_gradients_are_the_computed_ones_and_step_alike():
 
 def test_the_memory_estimate_counts_the_stored_pair_gradients():
     # Given the dam break with WCSPH, with DFSPH on lists, and with DFSPH walking the cells
-    from sphcore.scene import PAIR_GRADIENT_BYTES, SceneError as Refused, _check_resources, resource_estimate
+    from sphcore.scene import (PAIR_GRADIENT_BYTES, SceneError as Refused, _check_resources, resource_estimate,
+                               skin_bytes)
     wcsph = scene("dam_break", "run.neighbour_skin=0")  # no candidate lists either
-    dfsph = scene("dam_break", "sph.solver='dfsph'")
+    dfsph = scene("dam_break", "sph.solver='dfsph'", "run.neighbour_skin=0")
     walk = scene("dam_break", "sph.solver='dfsph'", "run.neighbours='walk'")
     wcsph_walk = scene("dam_break", "run.neighbours='walk'")  # the walk's grid: cells of H, not H / 2
     n = resource_estimate(wcsph)["particles"]
     # Then only DFSPH with lists on the CPU needs the gradients' bytes per particle
     assert resource_estimate(dfsph)["memory"] - resource_estimate(wcsph)["memory"] == pytest.approx(n * PAIR_GRADIENT_BYTES)
     assert resource_estimate(walk)["memory"] == resource_estimate(wcsph_walk)["memory"]
+    # and DFSPH's automatic skin (0.45) its candidate lists besides
+    auto = scene("dam_break", "sph.solver='dfsph'")
+    assert resource_estimate(auto)["memory"] - resource_estimate(dfsph)["memory"] == pytest.approx(n * skin_bytes(auto))
+    assert skin_bytes(auto) > 900
     assert resource_estimate(dfsph, "cuda")["memory"] == resource_estimate(wcsph, "cuda")["memory"]
     # and a machine with room for the WCSPH run but not for the gradients refuses the DFSPH one
     room = int(resource_estimate(wcsph)["memory"] * 1.5)

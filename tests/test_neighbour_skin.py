@@ -217,12 +217,13 @@ def test_peers_drop_forged_moved_ghosts_and_list_decisions_and_stay_bitwise_equa
 
 
 @pytest.mark.fast
-def test_the_automatic_skin_reuses_lists_for_wcsph_on_the_cpu_only():
+def test_the_automatic_skin_reuses_lists_on_the_cpu_only_and_wider_for_dfsph():
     from sphcore.scene import AUTO_SKIN, list_skin
     wcsph, dfsph = load_scene(DAM), load_scene(DAM, ["sph.solver='dfsph'"])
     assert wcsph.run.neighbour_skin == -1.0  # the default is automatic
-    assert list_skin(wcsph) == AUTO_SKIN > 0.0
-    assert list_skin(dfsph) == 0.0                  # its steps move particles farther than the skin
+    assert list_skin(wcsph) == AUTO_SKIN["wcsph"] == 0.2
+    assert list_skin(dfsph) == AUTO_SKIN["dfsph"] == 0.45  # its steps move particles farther
+    assert list_skin(load_scene(DAM, ["sph.solver='dfsph'"], backend="cuda"), "cuda") == 0.0
     assert list_skin(load_scene(DAM, backend="cuda"), "cuda") == 0.0
     assert list_skin(load_scene(DAM, ["run.neighbours='walk'"])) == 0.0
     assert list_skin(load_scene(DAM, ["run.neighbour_skin=0.3", "sph.solver='dfsph'"])) == 0.3  # a set value wins
