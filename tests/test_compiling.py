@@ -122,3 +122,25 @@ def test_processes_that_miss_the_same_kernel_at_once_compile_it_once_between_the
     assert all(run.returncode == 0 for run in runs), [err[-2000:] for _, err in outs]
     assert sum(int(out.strip().splitlines()[-1]) for out, _ in outs) == 1, outs
     assert not any("compiled in this process" in err for _, err in outs)
+
+
+def test_a_compile_lock_that_is_never_released_delays_a_process_and_does_not_hang_it(tmp_path, monkeypatch, caplog):
+    # Given a specialisation's lock held by another holder (a stopped process) that never lets go
+    import fcntl
+    import types
+    from sphcore.backends import literal
+    func = types.SimpleNamespace(__module__="probe", __qualname__="scaled", __name__="scaled")
+    dispatcher = types.SimpleNamespace(py_func=func, _cache=types.SimpleNamespace(cache_path=str(tmp_path)))
+    with literal._compiling(dispatcher, "(int64,)"):
+        held = open(next(tmp_path.glob("compiling-*.lock")), "a+b")
+    fcntl.flock(held, fcntl.LOCK_EX)
+    monkeypatch.setattr(literal, "LOCK_WAIT_S", 0.5)
+    # When this process wants it
+    started = time.monotonic()
+    with caplog.at_level("WARNING", logger="sph.compile"):
+        with literal._compiling(dispatcher, "(int64,)"):
+            waited = time.monotonic() - started
+    held.close()
+    # Then it waited LOCK_WAIT_S, said so, and went on to compile it itself
+    assert 0.5 <= waited < 5.0
+    assert "scaled: waited 0.5 s for another process to compile it; compiling it here" in caplog.text

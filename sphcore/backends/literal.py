@@ -35,6 +35,7 @@ import struct
 import subprocess
 import sys
 import threading
+import time
 from pathlib import Path
 
 import numba
@@ -100,6 +101,7 @@ def literal_dispatch(n_literals: int):
 # -- the helper process -----------------------------------------------------------------------------
 _helper = None
 _helper_lock = threading.Lock()
+LOCK_WAIT_S = 1800.0  # the longest wait for another process's compile (a cold scene takes minutes)
 _warned = False
 
 
@@ -127,7 +129,9 @@ def _compiling(dispatcher, sig):
     """Hold an exclusive lock on the cache's entry for (``dispatcher``, ``sig``) while it is compiled:
     processes that miss the same specialisation at once (the peers of a run started cold, test
     workers) compile it once between them instead of once each, and the others then load it. No
-    lock where none can be taken (no fcntl, a cache folder that cannot be written)."""
+    lock where none can be taken (no fcntl, a cache folder that cannot be written, a file system
+    without locks), and none after LOCK_WAIT_S: a holder that neither finishes nor dies (a stopped
+    process) delays the others, it does not hang them; they then compile it themselves."""
     try:
         import fcntl
         key = hashlib.sha256(f"{dispatcher.py_func.__module__}.{dispatcher.py_func.__qualname__} {sig}".encode())
@@ -137,7 +141,19 @@ def _compiling(dispatcher, sig):
         yield
         return
     try:
-        fcntl.flock(handle, fcntl.LOCK_EX)
+        deadline = time.monotonic() + LOCK_WAIT_S
+        while True:
+            try:
+                fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:  # another process compiles it
+                if time.monotonic() > deadline:
+                    log.warning("%s: waited %g s for another process to compile it; compiling it here",
+                                dispatcher.py_func.__name__, LOCK_WAIT_S)
+                    break
+                time.sleep(0.05)
+            except OSError:  # no locks here
+                break
         yield
     finally:
         handle.close()  # and with it the lock
