@@ -135,6 +135,7 @@ def _compiling(dispatcher, sig):
     try:
         import fcntl
         key = hashlib.sha256(f"{dispatcher.py_func.__module__}.{dispatcher.py_func.__qualname__} {sig}".encode())
+        # the empty lock files stay: removing one that another process has open would let two compile
         path = Path(dispatcher._cache.cache_path) / f"compiling-{key.hexdigest()[:20]}.lock"
         handle = open(path, "a+b")
     except (ImportError, OSError):
