@@ -24,6 +24,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
+from sphcore.output import write_json
 from sphcore.scene import load_scene
 from sphcore.solver import Simulation
 
@@ -297,9 +298,13 @@ def run_bench(args) -> int:
                     "python": platform.python_version(), "numba": numba.__version__, "device": device},
         "scene": str(scene_path), "results": results, "frame_budget": budget,
     }
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(report, indent=2) + "\n")
+    if args.json:  # checked writable before the cases ran (cli._check_bench); whole or not at all
+        try:
+            write_json(args.json, report)
+        except OSError as e:
+            from nodes.driver import OutputError
+            raise OutputError(f"--json {args.json}: not written ({e.strerror or e}); the results are printed "
+                              "above") from None
         print(f"wrote {args.json}", file=sys.stderr)
     return 0
 

@@ -43,6 +43,22 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _count(text: str) -> int:
+    """An integer >= 1: a number of particles, peers, rounds, steps timed, pixels or frames."""
+    value = _positive_int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} must be >= 1")
+    return value
+
+
+def _pixels(text: str) -> int:
+    value = _count(text)
+    if value > MAX_PIXELS:
+        raise argparse.ArgumentTypeError(f"{text!r}: at most {MAX_PIXELS} pixels a side")
+    return value
+
+
+MAX_PIXELS = 16384  # a side of a rendered frame: the usual largest texture of an off-screen renderer
 MAX_STEPS = 10**9  # as the scene's time.steps: a longer run is a typo, not a plan
 
 
@@ -50,6 +66,13 @@ def _steps(text: str) -> int:
     value = _positive_int(text)
     if value > MAX_STEPS:
         raise argparse.ArgumentTypeError(f"{text!r}: at most {MAX_STEPS:,} steps")
+    return value
+
+
+def _bench_steps(text: str) -> int:
+    value = _steps(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: a benchmark times at least 1 step")
     return value
 
 
@@ -253,7 +276,7 @@ def build_parser() -> argparse.ArgumentParser:
     peer.add_argument("config", type=Path, nargs="?", default=None,
                       help="scene file (TOML), the same on every peer (not with --resume)")
     peer.add_argument("--rank", type=_positive_int, required=True, help="this peer's rank, 0..WORLD-1")
-    peer.add_argument("--world", type=_positive_int, required=True, help="number of peers in the run")
+    peer.add_argument("--world", type=_count, required=True, help="number of peers in the run")
     peer.add_argument("--run-id", required=True,
                       help="the run's name on the network (letters, digits, - and _); two runs never mix")
     peer.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
@@ -305,7 +328,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_zenoh_option(viewer, "a peer's Zenoh endpoint, e.g. tls/10.0.0.1:7447 (repeatable)")
     viewer.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
                         help="Zenoh endpoint for peers to connect to (repeatable)")
-    viewer.add_argument("--world", type=_positive_int, default=None,
+    viewer.add_argument("--world", type=_count, default=None,
                         help="number of peers (default: learnt from the first framelet)")
     viewer.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                         help="the run's --set overrides (render settings may differ)")
@@ -339,7 +362,7 @@ def build_parser() -> argparse.ArgumentParser:
                          help="the run's id (default: from OUT_DIR/run.json, written by sph run --peers/--hosts/"
                               "--control)")
     _add_zenoh_option(control, "rank 0's Zenoh endpoint, e.g. tls/127.0.0.1:7447 (default: from OUT_DIR/run.json)")
-    control.add_argument("--world", type=_positive_int, default=None,
+    control.add_argument("--world", type=_count, default=None,
                          help="number of peers in the run (needed with --tls: the access-control list names them; "
                               "default: from OUT_DIR/run.json)")
     control.add_argument("--timeout", type=_positive_float, default=10.0,
@@ -373,9 +396,9 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--particles", action="store_true", help="draw the particles (coloured by speed) instead")
     render.add_argument("--frames", type=Path, default=None, help="folder for the PNG frames (default OUT/frames)")
     render.add_argument("--no-mp4", action="store_true", help="PNG frames only")
-    render.add_argument("--size", type=_positive_int, nargs=2, default=[960, 640], metavar=("W", "H"),
+    render.add_argument("--size", type=_pixels, nargs=2, default=[960, 640], metavar=("W", "H"),
                         help="image width and height in pixels (default: 960 640)")
-    render.add_argument("--fps", type=_positive_int, default=20, help="frames per second of the MP4 (default: 20)")
+    render.add_argument("--fps", type=_count, default=20, help="frames per second of the MP4 (default: 20)")
 
     validate = sub.add_parser(
         "validate", help="compare with reference solutions and experiments; exit 1 if a metric fails",
@@ -445,13 +468,13 @@ def build_parser() -> argparse.ArgumentParser:
         description="Benchmark the 3D dam break (configs/dam_break.toml) at several particle counts, "
                     "precisions and thread counts; optionally the same scene in PySPH and SPlisHSPlasH "
                     "side by side (needs scripts/setup_bench.sh). Prints a table and ratios, writes JSON.")
-    bench.add_argument("--sizes", type=_positive_int, nargs="+", default=[10_000, 50_000, 200_000],
+    bench.add_argument("--sizes", type=_count, nargs="+", default=[10_000, 50_000, 200_000],
                        help="target particle counts (the spacing is chosen to match; default: 10000 50000 200000)")
     bench.add_argument("--precisions", nargs="+", choices=("f32", "f64"), default=["f32", "f64"],
                        help="floating point precisions to time (default: f32 f64)")
     bench.add_argument("--threads", type=_positive_int, nargs="+", default=[1, 2],
                        help="numba thread counts to time (default: 1 2)")
-    bench.add_argument("--steps", type=_steps, default=100, help="timed steps per case (default: 100)")
+    bench.add_argument("--steps", type=_bench_steps, default=100, help="timed steps per case (default: 100)")
     bench.add_argument("--neighbours", nargs="+", choices=("lists", "walk"), default=["lists"],
                        help="neighbour search of each case: lists, walk (the 27-cell walk, no lists), or both "
                             "side by side with their ratio (default: lists)")
@@ -466,7 +489,7 @@ def build_parser() -> argparse.ArgumentParser:
                             "reuse); not with --external, --peers, --until or --network (default: 0)")
     bench.add_argument("--external", action="store_true",
                        help="also run PySPH and SPlisHSPlasH on the same scene (if installed)")
-    bench.add_argument("--peers", type=_positive_int, nargs="+", default=[1],
+    bench.add_argument("--peers", type=_count, nargs="+", default=[1],
                        help="also run each case as P peer processes over Zenoh (e.g. --peers 1 2; no viewer) and "
                             "print the speed-up over one peer; P x threads must fit the cores; with --backend cuda "
                             "the peers share the GPU(s), rank r on GPU r modulo their number (default: 1)")
@@ -479,7 +502,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help="instead: the 2-peer run over loopback with TLS and with --insecure, and over two "
                             "network-namespace hosts at 0, 1 and 5 ms (root), each with and without "
                             "decomposition.overlap (TLS), interleaved --repeat times")
-    bench.add_argument("--repeat", type=_positive_int, default=3, help="--network: rounds of every case (default: 3)")
+    bench.add_argument("--repeat", type=_count, default=3, help="--network: rounds of every case (default: 3)")
     bench.add_argument("--until", type=_positive_float, default=None, metavar="T",
                        help="instead of --steps fixed steps: step the dam break from rest to T simulated seconds "
                             "with each solver's adaptive step and report simulated seconds per wall second; "
@@ -536,14 +559,15 @@ def main(argv: list[str] | None = None) -> int:
                                  "the metrics' reference depends on it")
             if args.backend == "cuda":
                 _require_cuda()
-            return run_validate(names, args.quick, args.out, args.backend, tuple(args.overrides))
+            return run_validate(names, args.quick, _output_dir("--out", args.out), args.backend,
+                                tuple(args.overrides))
         if args.command == "study":
             from launch.study import CASES as STUDY_CASES, run_study
             names = args.cases or list(STUDY_CASES)
             unknown = [c for c in names if c not in STUDY_CASES]
             if unknown:
                 raise UsageError(f"study {' '.join(unknown)}: choose from {', '.join(STUDY_CASES)}")
-            return run_study(names, args.quick, args.out, args.docs, not args.no_terms)
+            return run_study(names, args.quick, _output_dir("--out", args.out), args.docs, not args.no_terms)
         if args.command == "scene":
             return _cmd_scene(args)
         if args.command == "examples":
@@ -684,26 +708,62 @@ def _require_cuda():
 def _output_folder(args, scene) -> Path:
     """The output folder, checked without creating anything: it is a folder (or will be one) and the
     nearest existing folder above it is writable. The run creates it just before its first step."""
-    import os
     if args.out is None:
         out = Path("runs") / _folder_name(scene.scene.name)
     elif str(args.out) in ("", "."):  # Path("") is "."; neither names a run's own folder
         raise UsageError(f"--out {str(args.out)!r}: name a folder for the run's outputs, e.g. --out runs/NAME")
     else:
         out = args.out
+    return _output_dir("--out", out)
+
+
+def _output_dir(flag: str, out: Path) -> Path:
+    """``out`` is a folder or can become one: the nearest existing folder above it takes a new file
+    (tried with a temporary file, removed at once: a permission bit does not tell, e.g. under /proc).
+    Nothing is created."""
+    import os
+    import tempfile
     try:
         if out.exists() and not out.is_dir():
-            raise UsageError(f"--out {str(out)!r}: exists and is not a folder")
+            raise UsageError(f"{flag} {str(out)!r}: exists and is not a folder")
         above = out.absolute()
         while not above.exists():
             above = above.parent
     except (OSError, ValueError) as e:  # a name too long, a NUL byte: the OS's own refusal, on one line
-        raise UsageError(f"--out {_short_text(str(out))}: not a usable path ({getattr(e, 'strerror', None) or e})") from None
+        raise UsageError(f"{flag} {_short_text(str(out))}: not a usable path ({getattr(e, 'strerror', None) or e})") from None
     if not above.is_dir():
-        raise UsageError(f"--out {str(out)!r}: {above} is a file, so no folder can be made under it")
+        raise UsageError(f"{flag} {str(out)!r}: {above} is a file, so no folder can be made under it")
     if not os.access(above, os.W_OK | os.X_OK):
-        raise UsageError(f"--out {str(out)!r}: {above} is not writable by this user")
+        raise UsageError(f"{flag} {str(out)!r}: {above} is not writable by this user")
+    try:
+        with tempfile.TemporaryFile(dir=above):
+            pass
+    except OSError as e:
+        raise UsageError(f"{flag} {str(out)!r}: nothing can be written in {above} "
+                         f"({e.strerror or e})") from None
     return out
+
+
+def _output_file(flag: str, path: Path):
+    """A file an option asks to write at the end of a long run, checked before anything runs: not a
+    folder, and a file can be made in the nearest existing folder above it (tried with a temporary file
+    there, removed at once: a permission bit does not tell, e.g. under /proc)."""
+    import tempfile
+    try:
+        if path.is_dir():
+            raise UsageError(f"{flag} {str(path)!r}: is a folder; name a file, e.g. {flag} results.json")
+        above = path.absolute().parent
+        while not above.exists():
+            above = above.parent
+        if not above.is_dir():
+            raise UsageError(f"{flag} {str(path)!r}: {above} is a file, so nothing can be written under it")
+        with tempfile.TemporaryFile(dir=above):
+            pass
+    except OSError as e:
+        raise UsageError(f"{flag} {_short_text(str(path))}: cannot write there "
+                         f"({getattr(e, 'strerror', None) or e})") from None
+    except ValueError as e:  # a NUL byte in the name
+        raise UsageError(f"{flag} {_short_text(str(path))}: not a usable path ({e})") from None
 
 
 def _short_text(text: str, most: int = 80) -> str:
@@ -742,6 +802,8 @@ def _check_bench(args):
         if args.until > 10.0:
             raise UsageError(f"--until {args.until:g}: at most 10 simulated seconds (the dam break has settled "
                              "long before)")
+    if args.json is not None:
+        _output_file("--json", args.json)
     if args.backend == "cuda":
         _require_cuda()
         if args.external:
@@ -1086,6 +1148,9 @@ def _cmd_render(args) -> int:
     return 0
 
 
+RRD_MAGIC = b"RRF"  # every Rerun recording's first bytes (RRF2 since Rerun 0.15: the version follows)
+
+
 def _cmd_replay(args) -> int:
     import os
     import subprocess
@@ -1093,6 +1158,14 @@ def _cmd_replay(args) -> int:
     from nodes.rerun_sinks import rerun_executable, serve_web
     if not args.file.is_file():
         raise UsageError(f"{str(args.file)!r}: no such recording")
+    try:
+        with open(args.file, "rb") as f:
+            head = f.read(4)
+    except OSError as e:
+        raise UsageError(f"{str(args.file)!r}: cannot read it ({e.strerror or e})") from None
+    if not head.startswith(RRD_MAGIC):
+        raise UsageError(f"{str(args.file)!r}: not a Rerun recording (an .rrd file starts with "
+                         f"{RRD_MAGIC.decode()}; this one with {head!r})")
     os.environ["RERUN_ANALYTICS"] = "0"
     if args.serve_web:
         import signal

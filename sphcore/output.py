@@ -30,8 +30,13 @@ def _atomic_write(path: Path, write):
         raise
 
 
+def write_json(path: Path, value):
+    """``value`` as indented JSON, whole or not at all."""
+    _atomic_write(path, lambda f: f.write((json.dumps(value, indent=2, sort_keys=False) + "\n").encode()))
+
+
 def write_summary(path: Path, summary: dict):
-    _atomic_write(path, lambda f: f.write((json.dumps(summary, indent=2, sort_keys=False) + "\n").encode()))
+    write_json(path, summary)
 
 
 def write_final(path: Path, arrays: dict):

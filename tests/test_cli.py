@@ -234,6 +234,59 @@ def test_bad_options_exit_2_before_anything_runs(args, fragments, tmp_path, caps
     assert not out.exists()
 
 
+@pytest.mark.parametrize("argv,fragments", [
+    (["bench", "--sizes", "0"], ["--sizes", "must be >= 1"]),
+    (["bench", "--steps", "0"], ["--steps", "at least 1 step"]),
+    (["bench", "--peers", "0"], ["--peers", "must be >= 1"]),
+    (["bench", "--network", "--repeat", "0"], ["--repeat", "must be >= 1"]),
+    (["render", "runs/x", "--size", "0", "10"], ["--size", "must be >= 1"]),
+    (["render", "runs/x", "--size", "20000", "10"], ["--size", "at most 16384"]),
+    (["render", "runs/x", "--fps", "0"], ["--fps", "must be >= 1"]),
+    (["peer", "x.toml", "--rank", "0", "--world", "0", "--run-id", "r"], ["--world", "must be >= 1"]),
+], ids=["bench-sizes-0", "bench-steps-0", "bench-peers-0", "bench-repeat-0", "render-size-0", "render-size-huge",
+        "render-fps-0", "peer-world-0"])
+@pytest.mark.fast
+def test_counts_of_zero_are_refused_before_anything_runs(argv, fragments, capsys):
+    # sph bench --sizes 0 divided by zero after set-up; --steps 0 after every case had run
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "Traceback" not in err
+    for frag in fragments:
+        assert frag in err, f"{frag!r} missing from {err!r}"
+
+
+@pytest.mark.fast
+def test_output_paths_nothing_can_be_written_to_are_refused_before_anything_runs(tmp_path, capsys):
+    # /proc takes no new file although root passes its permission check; a file is no folder
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x")
+    cases = [
+        (["bench", "--sizes", "1000", "--json", "/proc/x.json"], "cannot write there"),
+        (["bench", "--sizes", "1000", "--json", str(tmp_path)], "is a folder"),
+        (["bench", "--sizes", "1000", "--json", str(a_file / "x.json")], "is a file"),
+        (["validate", "hydrostatic", "--quick", "--out", "/proc/x"], "nothing can be written"),
+        (["validate", "hydrostatic", "--quick", "--out", str(a_file)], "exists and is not a folder"),
+        (["study", "--quick", "--out", "/proc/x"], "nothing can be written"),
+        (["run", TINY, "--steps", "1", "--quiet", "--out", "/proc/x"], "nothing can be written"),
+    ]
+    for argv, fragment in cases:
+        rc = main(argv)
+        err = capsys.readouterr().err
+        assert rc == 2 and fragment in err and "Traceback" not in err, (argv, err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]
+
+
+@pytest.mark.fast
+def test_replay_refuses_a_file_that_is_not_a_recording(tmp_path, capsys):
+    for name, content in [("notes.rrd", b"root:x:0:0"), ("empty.rrd", b"")]:
+        path = tmp_path / name
+        path.write_bytes(content)
+        rc = main(["replay", str(path), "--serve-web"])
+        err = capsys.readouterr().err
+        assert rc == 2 and "not a Rerun recording" in err and "Traceback" not in err, err
+
+
 # ---------------------------------------------------------------------------------------------
 # sph scene
 # ---------------------------------------------------------------------------------------------
