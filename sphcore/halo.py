@@ -69,6 +69,11 @@ class Transport(Protocol):
         ``check(arrays)`` does not raise ``Reject`` (rejected ones are dropped and counted); it
         yields while it waits (in-process) or blocks (between processes)."""
 
+    def discard(self, source: int, tag: tuple) -> None:
+        """Message ``tag`` from ``source`` will not be asked for (a step's early exchange 1 when the
+        step builds its lists after all): free it unread if it has come, and any copy that comes
+        later, without counting it as dropped. Never blocks."""
+
     @property
     def drops(self) -> dict:
         """Messages dropped so far, never used: {source: {reason: count}}."""
@@ -117,12 +122,21 @@ class NullHalo:
         return
         yield
 
+    def send_moved(self, sim):
+        pass
+
+    def forget_moved(self, sim):
+        pass
+
     def rebalance_due(self, sim) -> bool:
         return False
 
-    def reduce_max_value(self, sim, phase, value: float):
-        return value
+    def reduce_max_value(self, sim, phase, value: float, meanwhile=None):
+        return value  # nothing travels: ``meanwhile`` is not run
         yield
+
+    def early_interior_rows(self, sim):
+        return None
 
     def send_ghosts(self, sim, phase, names, kind=None):
         pass
@@ -191,6 +205,7 @@ class PeerHalo:
         self.rebalances = 0
         self.ghosts_received = 0  # ghost rows received over the run (the halo's minimum traffic)
         self.migrated = 0         # particles this peer handed to another owner over the run
+        self.moved_unused = 0     # steps whose early exchange 1 (send_moved) this peer sent and dropped
         self.cut_moves = 0        # rebalances that moved a cut
         self._balanced_at = -1
         self._sent_rows = {}     # neighbour -> rows (before the grid sort) sent as its ghosts
@@ -369,15 +384,29 @@ class PeerHalo:
         particle changes owner; the neighbours' ghost rows of the last build get their rows' new x, v,
         m and carried extras (not their ids or reference positions, which stay), in the order of that
         build, overlapped like exchange 2 (``receive_ghosts``; a backend that does not sort its ghosts
-        apart waits here)."""
-        step = sim.step_index
-        if self._pending:
-            raise RuntimeError(f"peer {self.rank}, step {step}: ghost rows of {sorted(self._pending)} were sent and "
-                               "never received")
-        kept = (EXTRA_PREFIX + "x_ref", "id")
-        self.send_ghosts(sim, MOVED, tuple(k for k in sim.engine.carried_names() if k not in kept), POSITIONS)
+        apart waits here). Sent here unless ``send_moved`` sent it with the decision."""
+        if MOVED not in self._pending:
+            self.send_moved(sim)
         if not (self.overlap and sim.engine.sorts_ghosts_apart):
             yield from self.receive_ghosts(sim, MOVED)
+
+    def send_moved(self, sim):
+        """Exchange 1 of a step that will likely reuse its lists, sent before the peers have agreed
+        (Simulation._reuse_lists): it travels with the decision instead of after it, a latency less a
+        step. ``exchange_moved`` receives it, or ``forget_moved`` drops it if the step builds after all."""
+        if self._pending:
+            raise RuntimeError(f"peer {self.rank}, step {sim.step_index}: ghost rows of {sorted(self._pending)} were "
+                               "sent and never received")
+        kept = (EXTRA_PREFIX + "x_ref", "id")
+        self.send_ghosts(sim, MOVED, tuple(k for k in sim.engine.carried_names() if k not in kept), POSITIONS)
+
+    def forget_moved(self, sim):
+        """The step builds its lists after all: no exchange 1 of ``send_moved`` is used, ours (withdrawn)
+        or the neighbours' (freed unread, not counted as dropped)."""
+        if self._pending.pop(MOVED, None) is not None:
+            self.moved_unused += 1
+        for q in self.neighbours:
+            self.transport.discard(q, (sim.step_index, MOVED))
 
     def _moved_check(self, sim, q, check, lo, hi):
         """``check`` of exchange 1 on a step that reuses its lists, and every ghost within the skin's
@@ -469,13 +498,16 @@ class PeerHalo:
         """Which of the points x (n, 3) lie in this peer's block (the cells it owns)."""
         return self.dec.owner(sim.grid.cells_of(x)) == self.rank
 
-    def _reduce_one(self, sim, phase, key, value, dtype):
+    def _reduce_one(self, sim, phase, key, value, dtype, meanwhile=None):
         """Generator: ``value`` and every other peer's value of ``phase`` (a one-element ``dtype`` array
-        ``key``), this peer's first, then the others' in rank order."""
+        ``key``), this peer's first, then the others' in rank order; ``meanwhile()`` runs once the
+        value is sent, while the others' travel."""
         step = sim.step_index
         message = {key: np.array([value], dtype=dtype)}
         for q in self.others:
             self._send(q, (step, phase), message, "reduce")
+        if meanwhile is not None:
+            meanwhile()
         values = [value]
         expected = {key: ((1,), dtype)}
         for q in self.others:
@@ -490,11 +522,19 @@ class PeerHalo:
         values = yield from self._reduce_one(sim, phase, "sum", value, np.int64)
         return sum(int(v) for v in values)
 
-    def reduce_max_value(self, sim, phase, value: float):
+    def reduce_max_value(self, sim, phase, value: float, meanwhile=None):
         """Global max of one finite float64 (every peer gets the same): whether every peer's lists
-        still hold (Simulation._reuse_lists)."""
-        values = yield from self._reduce_one(sim, phase, "max", value, np.float64)
+        still hold (Simulation._reuse_lists). ``meanwhile()`` runs while the others' values travel
+        (a single process, whose halo has nothing to wait for, does not run it)."""
+        values = yield from self._reduce_one(sim, phase, "max", value, np.float64, meanwhile)
         return max(float(v) for v in values)
+
+    def early_interior_rows(self, sim):
+        """The interior rows of a step that will likely reuse its lists (``split_rows``' first part,
+        the same array), before exchange 1 is sent; None where this peer does not overlap."""
+        if not (self.overlap and sim.engine.sorts_ghosts_apart):
+            return None
+        return sim.engine.split_rows(self.dec, self.rank, self.neighbours)[0]
 
     def reduce_sums(self, sim, phase, values, step=None):
         """Global sums of an int64 vector (exact and order independent, like ``reduce_sum``): the

@@ -108,6 +108,7 @@ class Simulation:
             check_full(scene, model.walls, self.n_particles)
         self._add_extra(self._state)
         self.grid = model.host_grid
+        self._filtered_early = None  # this step's rows whose lists were filtered early (_reuse_lists)
         self.solver = SOLVERS[scene.sph.solver](self)  # the pressure solver's hooks into the step (solvers.py)
 
         self.t = 0.0
@@ -429,26 +430,45 @@ class Simulation:
         become their positions. A step that may reuse but whose rows moved between peers or were
         loaded (a rebalance, a resume, a restart in place) sorts and lists them anew from the saved
         reference positions: exactly the lists a single, uninterrupted run holds, so neither changes
-        the bits."""
+        the bits. A peer whose own rows allow a reuse sends exchange 1 (``halo.send_moved``) before the
+        decision, so that the two travel together, and filters its interior rows' lists while they
+        travel (their candidates hold no ghost); both are dropped if some peer needs a build."""
         grid, e = self.grid, self.engine
+        self._filtered_early = None
         if not grid.skin:
             return False
         restore = grid.from_reference
         grid.from_reference = False
         moved2 = e.displacement2() if (restore or grid.listed(self._state)) else math.inf
-        moved2 = yield from halo.reduce_max_value(self, "lists", min(moved2, 1e300) if moved2 == moved2 else 1e300)
+        early = None
+        if moved2 < grid.reuse_limit2 and not restore and not halo.rebalance_due(self):  # a likely reuse:
+            halo.send_moved(self)                                  # exchange 1 travels with the decision
+            early = halo.early_interior_rows(self)
+
+        def filter_early():                                        # the interior rows' lists meanwhile
+            with self.timers("grid"):
+                e.neighbours(early, filter_only=True)
+            self._filtered_early = early
+
+        moved2 = yield from halo.reduce_max_value(self, "lists", min(moved2, 1e300) if moved2 == moved2 else 1e300,
+                                                  meanwhile=None if early is None else filter_early)
         grid.reusing = moved2 < grid.reuse_limit2
         if not grid.reusing:
+            halo.forget_moved(self)                                # no peer uses an early exchange 1
             e.set_reference()                                      # x_ref = x: a fresh build
             return False
         if restore or halo.rebalance_due(self):
+            halo.forget_moved(self)
             grid.restoring = True                                  # the build's lists from x_ref
             return False
         return True
+
     def _fields(self, halo, prm, commit):
         """Exchange 1, the neighbour lists, density and pressure (DFSPH: its factors and the
         reference density), exchange 2: everything the accelerations need."""
         reuse = yield from self._reuse_lists(halo)                # a skin: the lists still hold on every peer
+        if not reuse:
+            self._filtered_early = None                            # a build after all: every row listed anew
         if reuse:
             yield from halo.exchange_moved(self)                   # ghosts' x, v, m (exchange 1, no migrants)
         else:
@@ -459,8 +479,9 @@ class Simulation:
                              rows=rows)                            # commit the carried rho
 
         def listed_density(rows, wait):
-            with self.timers("grid"):
-                self.engine.neighbours(rows)                       # x                -> the rows' lists
+            if rows is None or rows is not self._filtered_early:  # (a reusing peer's interior rows: filtered
+                with self.timers("grid"):                          # while the build decision travelled)
+                    self.engine.neighbours(rows)                   # x                -> the rows' lists
             return density(rows)
 
         if halo.pending(POSITIONS):                                # the ghosts travel: a CPU peer sorts

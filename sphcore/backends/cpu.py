@@ -177,14 +177,14 @@ class CpuStages(Engine):
         grid.sort_ghosts(s, self._placed(s))
         grid.last_permutation = np.concatenate([owned, grid.last_permutation[s.n_owned:]])
 
-    def neighbours(self, rows=None):
+    def neighbours(self, rows=None, filter_only=False):
         if self.model.neighbours == "walk":
             return
         s, grid = self.sim._state, self.sim.grid
         if not grid.skin:
             grid.build_neighbours(s.x, s.n_owned, rows)
             return
-        if not grid.reusing or grid.restoring:
+        if not filter_only and (not grid.reusing or grid.restoring):
             grid.build_candidates(s.extra["x_ref"], s.n_owned, rows)
         grid.filter_neighbours(s.x, s.n_owned, rows)
 

@@ -143,9 +143,11 @@ class Engine:
         ``set_rows``) are still numbered as in exchange 1."""
         raise NotImplementedError
 
-    def neighbours(self, rows=None):
+    def neighbours(self, rows=None, filter_only=False):
         """The neighbour lists of the owned rows, or of ``rows`` only (from ``split_rows``), in the
-        order of the last sort; nothing when the passes walk the cells."""
+        order of the last sort; nothing when the passes walk the cells. ``filter_only``: with a skin,
+        filter the candidates of the last build, whatever this step decides (a peer's interior rows
+        while the decision travels: Simulation._reuse_lists)."""
         raise NotImplementedError
 
     def row_layout(self, name) -> tuple:
