@@ -55,10 +55,6 @@ class Endpoint(Transport, Protocol):
         Yields (in-process) or blocks (between processes) until it arrives; raises ``PeerLost`` when
         a peer of the run has gone and ``PeerTimeout`` after the endpoint's timeout."""
 
-    def discard(self, source: int, tag: tuple) -> None:
-        """Message ``tag`` from ``source`` will not be asked for: freed unread if it has come, and
-        any copy that comes later, not counted in ``drops``. Never blocks."""
-
     @property
     def drops(self) -> dict:
         """Messages dropped so far, never used: {source: {reason: count}} (a copy)."""

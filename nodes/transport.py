@@ -86,7 +86,6 @@ class Mailbox:
         self.step = None          # the receiver's step (None: not known yet, every step is let in)
         self._mail = {}           # (source, step, phase) -> [(arrays, size, raw), ...]
         self._taken = set()       # keys already delivered (so later copies are duplicates)
-        self._unwanted = set()    # keys the receiver will not ask for (discard): freed unread, uncounted
         self._held = {}           # source -> [messages, bytes]
 
     def put(self, source: int, step: int, phase: str, arrays: dict, size: int, raw: bytes | None = None,
@@ -105,8 +104,6 @@ class Mailbox:
         key = (source, step, phase)
         if key in self._taken:
             self.drop(source, "duplicate", f"{what}: already received")
-            return False
-        if key in self._unwanted:
             return False
         candidates = self._mail.get(key, [])
         if raw is not None and any(c[2] == raw for c in candidates):
@@ -137,12 +134,6 @@ class Mailbox:
         self._release(key[0], size)
         return arrays
 
-    def discard(self, key: tuple):
-        """The receiver will not ask for ``key``: what waits under it is freed, and what comes later."""
-        for _, size, _ in self._mail.pop(key, []):
-            self._release(key[0], size)
-        self._unwanted.add(key)
-
     def delivered(self, key: tuple):
         """The receiver used a message of ``key``: the others waiting under it are duplicates."""
         for _ in self._mail.pop(key, []):
@@ -159,7 +150,6 @@ class Mailbox:
                 self._release(key[0], size)
                 self.drop(key[0], "unused", f"step {key[1]} {key[2]!r}: never asked for (now at step {step})")
         self._taken = {k for k in self._taken if k[1] >= step}
-        self._unwanted = {k for k in self._unwanted if k[1] >= step}
 
     def _release(self, source, size):
         held = self._held[source]
@@ -229,13 +219,6 @@ class InProcessEndpoint(CountsDrops):
 
     def _count(self, phase: str, arrays: dict):
         self.bytes_sent[phase] = self.bytes_sent.get(phase, 0) + sum(int(a.nbytes) for a in arrays.values())
-
-    def discard(self, source: int, tag: tuple):
-        """Free message ``tag`` from ``source`` unread. In memory a message is filed when it is sent, and
-        a peer discards only what its sender sent before a message this peer has received."""
-        key = (self.rank, source, tag)
-        self.network._mail.pop(key, None)
-        self.network._sent.discard(key)
 
     def recv(self, source: int, tag: tuple, check=None):
         """Generator: yields until a message ``tag`` from ``source`` to this peer has arrived that

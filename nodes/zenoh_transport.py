@@ -236,11 +236,6 @@ class ZenohEndpoint(CountsDrops):
             self._frame_publisher().put(payload)
         self.bytes_sent["frames"] = self.bytes_sent.get("frames", 0) + len(payload)
 
-    def discard(self, source: int, tag: tuple):
-        """Free message ``tag`` from ``source`` unread, now or when it comes (not counted as dropped)."""
-        with self._cv:
-            self._mail.discard((source, *tag))
-
     def recv(self, source: int, tag: tuple, check=None):
         """Generator with the in-process interface; it blocks instead of yielding."""
         return self.wait(source, tag, check)

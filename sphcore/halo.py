@@ -13,10 +13,12 @@ that yields while it waits for messages (a single process never waits):
     split_rows           while a phase is on its way: (interior, boundary) owned rows, the interior
                          ones out of reach of every ghost (computed meanwhile: solver._overlapped)
     reduce_max           the global max of the step statistics (adaptive dt, health check)
-    reduce_max_value     the global max of one value: with a skin, whether every peer's lists hold
+    reduce_values        every peer's value of one number: with a skin, whether every peer's lists hold
     exchange_moved       exchange 1 of a step that reuses its lists (every peer agreed): the same
                          ghost rows' x, v, m, in the order of the last build, pending ("moved") like
                          exchange 2; no migrants (a particle keeps its owner until the next build)
+    send_moved           ... sent with the decision by a peer whose own rows allow a reuse
+    forget_moved         ... received, checked and left unused when the step builds after all
 
 Load balancing (``balance_every`` > 0): at the start of exchange 1 of every K-th step the peers sum
 their per-axis particle histograms, all compute the same balanced cuts
@@ -69,11 +71,6 @@ class Transport(Protocol):
         ``check(arrays)`` does not raise ``Reject`` (rejected ones are dropped and counted); it
         yields while it waits (in-process) or blocks (between processes)."""
 
-    def discard(self, source: int, tag: tuple) -> None:
-        """Message ``tag`` from ``source`` will not be asked for (a step's early exchange 1 when the
-        step builds its lists after all): free it unread if it has come, and any copy that comes
-        later, without counting it as dropped. Never blocks."""
-
     @property
     def drops(self) -> dict:
         """Messages dropped so far, never used: {source: {reason: count}}."""
@@ -125,14 +122,15 @@ class NullHalo:
     def send_moved(self, sim):
         pass
 
-    def forget_moved(self, sim):
-        pass
+    def forget_moved(self, sim, senders, same_rows):
+        return
+        yield
 
     def rebalance_due(self, sim) -> bool:
         return False
 
-    def reduce_max_value(self, sim, phase, value: float, meanwhile=None):
-        return value  # nothing travels: ``meanwhile`` is not run
+    def reduce_values(self, sim, phase, value: float, meanwhile=None):
+        return [(0, value)]  # nothing travels: ``meanwhile`` is not run
         yield
 
     def early_interior_rows(self, sim):
@@ -397,16 +395,33 @@ class PeerHalo:
         if self._pending:
             raise RuntimeError(f"peer {self.rank}, step {sim.step_index}: ghost rows of {sorted(self._pending)} were "
                                "sent and never received")
-        kept = (EXTRA_PREFIX + "x_ref", "id")
-        self.send_ghosts(sim, MOVED, tuple(k for k in sim.engine.carried_names() if k not in kept), POSITIONS)
+        self.send_ghosts(sim, MOVED, self._moved_names(sim), POSITIONS)
 
-    def forget_moved(self, sim):
-        """The step builds its lists after all: no exchange 1 of ``send_moved`` is used, ours (withdrawn)
-        or the neighbours' (freed unread, not counted as dropped)."""
+    def forget_moved(self, sim, senders, same_rows):
+        """Generator: the step builds its lists after all, so no exchange 1 of ``send_moved`` is used.
+        Ours is withdrawn; those of the neighbours in ``senders`` (the peers whose displacements, as
+        the decision showed, let them send one) are received and checked as on a reusing step, then
+        set aside: every message on the wire is read or counted as dropped. Where this peer's rows
+        were replaced since the last build (``same_rows`` false: an inlet, an outlet), its ghost rows'
+        reference positions are no longer at hand, and the messages are checked for their shape."""
         if self._pending.pop(MOVED, None) is not None:
             self.moved_unused += 1
+        step = sim.step_index
+        layout = {k: sim.engine.row_layout(k) for k in self._moved_names(sim)}
         for q in self.neighbours:
-            self.transport.discard(q, (sim.step_index, MOVED))
+            if q in senders:
+                lo, hi = self._ghost_rows[q]
+                check = self._ghost_rows_check(q, MOVED, layout, lo, hi)
+                if same_rows:
+                    check = self._moved_check(sim, q, check, lo, hi)
+                yield from self.transport.recv(q, (step, MOVED), check)
+
+    @staticmethod
+    def _moved_names(sim) -> tuple:
+        """The arrays of exchange 1 on a reusing step: the carried ones but the ids and reference
+        positions, which stay."""
+        kept = (EXTRA_PREFIX + "x_ref", "id")
+        return tuple(k for k in sim.engine.carried_names() if k not in kept)
 
     def _moved_check(self, sim, q, check, lo, hi):
         """``check`` of exchange 1 on a step that reuses its lists, and every ghost within the skin's
@@ -522,12 +537,13 @@ class PeerHalo:
         values = yield from self._reduce_one(sim, phase, "sum", value, np.int64)
         return sum(int(v) for v in values)
 
-    def reduce_max_value(self, sim, phase, value: float, meanwhile=None):
-        """Global max of one finite float64 (every peer gets the same): whether every peer's lists
-        still hold (Simulation._reuse_lists). ``meanwhile()`` runs while the others' values travel
-        (a single process, whose halo has nothing to wait for, does not run it)."""
+    def reduce_values(self, sim, phase, value: float, meanwhile=None):
+        """Every peer's finite float64 ``value`` of ``phase``, as [(rank, value)] (every peer gets the
+        same): the displacements that decide whether every peer's lists still hold
+        (Simulation._reuse_lists). ``meanwhile()`` runs while the others' values travel (a single
+        process, whose halo has nothing to wait for, does not run it)."""
         values = yield from self._reduce_one(sim, phase, "max", value, np.float64, meanwhile)
-        return max(float(v) for v in values)
+        return [(r, float(v)) for r, v in zip([self.rank, *self.others], values)]
 
     def early_interior_rows(self, sim):
         """The interior rows of a step that will likely reuse its lists (``split_rows``' first part,

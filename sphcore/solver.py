@@ -432,17 +432,20 @@ class Simulation:
         reference positions: exactly the lists a single, uninterrupted run holds, so neither changes
         the bits. A peer whose own rows allow a reuse sends exchange 1 (``halo.send_moved``) before the
         decision, so that the two travel together, and filters its interior rows' lists while they
-        travel (their candidates hold no ghost); both are dropped if some peer needs a build."""
+        travel (their candidates hold no ghost); if some peer needs a build, the early exchange 1s
+        are received, checked and left unused, and the filtered lists are built anew."""
         grid, e = self.grid, self.engine
         self._filtered_early = None
         if not grid.skin:
             return False
         restore = grid.from_reference
         grid.from_reference = False
-        moved2 = e.displacement2() if (restore or grid.listed(self._state)) else math.inf
+        same_rows = restore or grid.listed(self._state)
+        moved2 = e.displacement2() if same_rows else math.inf
         early = None
-        if moved2 < grid.reuse_limit2 and not restore and not halo.rebalance_due(self):  # a likely reuse:
-            halo.send_moved(self)                                  # exchange 1 travels with the decision
+        may_send = not restore and not halo.rebalance_due(self)    # alike on every peer: then every peer
+        if may_send and moved2 < grid.reuse_limit2:                # whose rows allow a reuse sends exchange
+            halo.send_moved(self)                                  # 1 with the decision
             early = halo.early_interior_rows(self)
 
         def filter_early():                                        # the interior rows' lists meanwhile
@@ -450,15 +453,15 @@ class Simulation:
                 e.neighbours(early, filter_only=True)
             self._filtered_early = early
 
-        moved2 = yield from halo.reduce_max_value(self, "lists", min(moved2, 1e300) if moved2 == moved2 else 1e300,
-                                                  meanwhile=None if early is None else filter_early)
-        grid.reusing = moved2 < grid.reuse_limit2
-        if not grid.reusing:
-            halo.forget_moved(self)                                # no peer uses an early exchange 1
+        every = yield from halo.reduce_values(self, "lists", min(moved2, 1e300) if moved2 == moved2 else 1e300,
+                                              meanwhile=None if early is None else filter_early)
+        grid.reusing = max(v for _, v in every) < grid.reuse_limit2
+        if not grid.reusing:                                       # no peer uses an early exchange 1: those
+            if may_send:                                           # sent are read (and checked) unused
+                yield from halo.forget_moved(self, {r for r, v in every if v < grid.reuse_limit2}, same_rows)
             e.set_reference()                                      # x_ref = x: a fresh build
             return False
         if restore or halo.rebalance_due(self):
-            halo.forget_moved(self)
             grid.restoring = True                                  # the build's lists from x_ref
             return False
         return True

@@ -352,25 +352,3 @@ def test_a_repeated_id_is_found_wherever_it_sits():
         assert has_repeats(twice), (a, b)
     assert has_repeats(np.array([-1, 5, -1]))
 
-
-@pytest.mark.fast
-def test_a_discarded_message_is_freed_unread_whenever_it_comes_and_a_flood_under_its_key_too():
-    # A step that builds its lists after all discards the early exchange 1 ("moved") of its
-    # neighbours (sphcore/halo.py forget_moved): whether it came before or after the discard, it is
-    # freed without a drop count, and it holds no room in the sender's share of the mailbox
-    from nodes.transport import MAX_PENDING, DropLog, Mailbox
-    drops = DropLog("peer 0")
-    box = Mailbox(drops)
-    box.advance(7)
-    arrays = {"x": np.zeros((3, 3))}
-    assert box.put(1, 7, "moved", arrays, 72)            # came before the discard
-    box.discard((1, 7, "moved"))
-    assert (1, 7, "moved") not in box
-    for _ in range(3 * MAX_PENDING):                      # copies after it (a flood on that key)
-        assert not box.put(1, 7, "moved", arrays, 72)
-    assert box.put(1, 7, "positions", arrays, 72)         # the sender's share is all free again
-    assert box.pop((1, 7, "positions")) is not None
-    assert drops.counts == {}
-    box.advance(8)                                        # the mark goes with its step: a later step's
-    assert not box.put(1, 7, "moved", arrays, 72)         # copy of step 7 is a replay, counted
-    assert drops.counts == {"1": {"old step": 1}}

@@ -222,6 +222,40 @@ def test_peers_drop_forged_moved_ghosts_and_list_decisions_and_stay_bitwise_equa
 
 
 @pytest.mark.fast
+def test_an_early_exchange_1_of_a_step_that_builds_is_read_and_a_forged_one_counted():
+    # Given the 3D dam break on two peers with a thin skin: on the steps where one peer's rows allowed
+    # a reuse (it sent exchange 1 with the decision) but the other's asked for a build
+    sc = load_scene(DAM, ["particles.spacing=0.04", "run.neighbour_skin=0.03"])
+    calm = InProcessCluster(sc, 2, "f64", dims=(2, 1, 1))
+    early = []  # (step, the rank that sent an exchange 1 the step did not use)
+    for step in range(60):
+        before = [h.moved_unused for h in calm.halos]
+        calm.step()
+        early += [(step, r) for r, h in enumerate(calm.halos) if h.moved_unused > before[r]]
+    assert early and all(h.transport.dropped == 0 for h in calm.halos)
+    # When forged copies of it come first, on another cluster
+    hit = InProcessCluster(sc, 2, "f64", dims=(2, 1, 1))
+    expected = {0: {}, 1: {}}
+    for step in range(60):
+        for _, sender in [e for e in early if e[0] == step]:
+            dest = 1 - sender
+            lo, hi = hit.halos[dest]._ghost_rows[sender]
+            rows = hit.peers[dest].engine.rows_of(("x", "v", "m"), np.arange(lo, hi))
+            for reason, arrays in {"owner": dict(rows, x=rows["x"] + 0.5), "mass": dict(rows, m=-rows["m"])}.items():
+                hit.network.deliver(dest, sender, (step, "moved"), arrays)
+                expected[dest][reason] = expected[dest].get(reason, 0) + 1
+        hit.step()
+    # Then the peers read every early message, rejected the forged ones for what they are, and
+    # stepped to the same bits
+    for rank, halo in enumerate(hit.halos):
+        assert halo.transport.drops == ({str(1 - rank): expected[rank]} if expected[rank] else {}), rank
+    assert not hit.network._mail
+    a, b = calm.final_arrays(), hit.final_arrays()
+    for key in ("id", "x", "v", "rho"):
+        assert np.array_equal(a[key], b[key]), key
+
+
+@pytest.mark.fast
 def test_the_automatic_skin_reuses_lists_on_the_cpu_only_and_wider_for_dfsph():
     from sphcore.scene import AUTO_SKIN, list_skin
     wcsph, dfsph = load_scene(DAM), load_scene(DAM, ["sph.solver='dfsph'"])
