@@ -739,8 +739,8 @@ def _output_dir(flag: str, out: Path) -> Path:
         with tempfile.TemporaryFile(dir=above):
             pass
     except OSError as e:
-        raise UsageError(f"{flag} {str(out)!r}: nothing can be written in {above} "
-                         f"({e.strerror or e})") from None
+        raise UsageError(f"{flag} {str(out)!r}: cannot write there (nothing can be written in {above}: "
+                         f"{e.strerror or e})") from None
     return out
 
 

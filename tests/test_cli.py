@@ -265,10 +265,10 @@ def test_output_paths_nothing_can_be_written_to_are_refused_before_anything_runs
         (["bench", "--sizes", "1000", "--json", "/proc/x.json"], "cannot write there"),
         (["bench", "--sizes", "1000", "--json", str(tmp_path)], "is a folder"),
         (["bench", "--sizes", "1000", "--json", str(a_file / "x.json")], "is a file"),
-        (["validate", "hydrostatic", "--quick", "--out", "/proc/x"], "nothing can be written"),
+        (["validate", "hydrostatic", "--quick", "--out", "/proc/x"], "cannot write there"),
         (["validate", "hydrostatic", "--quick", "--out", str(a_file)], "exists and is not a folder"),
-        (["study", "--quick", "--out", "/proc/x"], "nothing can be written"),
-        (["run", TINY, "--steps", "1", "--quiet", "--out", "/proc/x"], "nothing can be written"),
+        (["study", "--quick", "--out", "/proc/x"], "cannot write there"),
+        (["run", TINY, "--steps", "1", "--quiet", "--out", "/proc/x"], "cannot write there"),
     ]
     for argv, fragment in cases:
         rc = main(argv)
