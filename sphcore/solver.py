@@ -108,7 +108,7 @@ class Simulation:
             check_full(scene, model.walls, self.n_particles)
         self._add_extra(self._state)
         self.grid = model.host_grid
-        self._filtered_early = None  # this step's rows whose lists were filtered early (_reuse_lists)
+        self._early = None  # (rows, their density's counts or None): lists filtered before the decision
         self.solver = SOLVERS[scene.sph.solver](self)  # the pressure solver's hooks into the step (solvers.py)
 
         self.t = 0.0
@@ -422,7 +422,7 @@ class Simulation:
         if self.model.walls.at(t):
             self.engine.walls_moved()
 
-    def _reuse_lists(self, halo):
+    def _reuse_lists(self, halo, density=None):
         """Generator: whether this step filters the lists it holds (run.neighbour_skin; grid.py) instead
         of building them, decided alike on every peer from the global largest displacement of a row
         from its reference position. A build comes when some row moved REUSE_SHARE of the skin, or
@@ -432,10 +432,12 @@ class Simulation:
         reference positions: exactly the lists a single, uninterrupted run holds, so neither changes
         the bits. A peer whose own rows allow a reuse sends exchange 1 (``halo.send_moved``) before the
         decision, so that the two travel together, and filters its interior rows' lists while they
-        travel (their candidates hold no ghost); if some peer needs a build, the early exchange 1s
-        are received, checked and left unused, and the filtered lists are built anew."""
+        travel (their candidates hold no ghost), and sums their ``density(rows)`` if given (it must
+        change nothing a build would not compute again: no carried density); if some peer needs a
+        build, the early exchange 1s are received, checked and left unused, and every row is listed
+        and summed anew."""
         grid, e = self.grid, self.engine
-        self._filtered_early = None
+        self._early = None
         if not grid.skin:
             return False
         restore = grid.from_reference
@@ -451,7 +453,7 @@ class Simulation:
         def filter_early():                                        # the interior rows' lists meanwhile
             with self.timers("grid"):
                 e.neighbours(early, filter_only=True)
-            self._filtered_early = early
+            self._early = (early, None if density is None else density(early))
 
         every = yield from halo.reduce_values(self, "lists", min(moved2, 1e300) if moved2 == moved2 else 1e300,
                                               meanwhile=None if early is None else filter_early)
@@ -469,21 +471,25 @@ class Simulation:
     def _fields(self, halo, prm, commit):
         """Exchange 1, the neighbour lists, density and pressure (DFSPH: its factors and the
         reference density), exchange 2: everything the accelerations need."""
-        reuse = yield from self._reuse_lists(halo)                # a skin: the lists still hold on every peer
+        def density(rows):                                         # x, m (v) -> rho, p, fill; continuity:
+            return self._run(st.DENSITY, prm=prm, dt_prev=self.dtype.type(self.dt_prev), commit=bool(commit),
+                             rows=rows)                            # commit the carried rho
+
+        early_density = None if self.model.continuity else density  # (committed twice if the step builds)
+        reuse = yield from self._reuse_lists(halo, early_density)  # a skin: the lists still hold on every peer
         if not reuse:
-            self._filtered_early = None                            # a build after all: every row listed anew
+            self._early = None                                     # a build after all: every row listed anew
         if reuse:
             yield from halo.exchange_moved(self)                   # ghosts' x, v, m (exchange 1, no migrants)
         else:
             yield from halo.exchange_positions(self)               # migrants; ghosts' id, x, v, m (exchange 1)
 
-        def density(rows):                                         # x, m (v) -> rho, p, fill; continuity:
-            return self._run(st.DENSITY, prm=prm, dt_prev=self.dtype.type(self.dt_prev), commit=bool(commit),
-                             rows=rows)                            # commit the carried rho
-
         def listed_density(rows, wait):
-            if rows is None or rows is not self._filtered_early:  # (a reusing peer's interior rows: filtered
-                with self.timers("grid"):                          # while the build decision travelled)
+            if self._early is not None and rows is self._early[0]:  # a reusing peer's interior rows: listed
+                if self._early[1] is not None:                     # (and summed) while the decision travelled
+                    return self._early[1]
+            else:
+                with self.timers("grid"):
                     self.engine.neighbours(rows)                   # x                -> the rows' lists
             return density(rows)
 
