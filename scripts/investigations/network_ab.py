@@ -1,7 +1,9 @@
 """Two code trees side by side on two network-namespace hosts (root): the 2-peer 3D dam break
 (about 20,000 particles, f32, fixed dt, 1 numba thread a peer, TLS, no viewer) with a one-way delay
 added by a relay on each host, as `sph bench --network` runs it, the trees in turn for --rounds
-rounds (ABAB...). Prints each run's particle-steps/s and the peers' mean wait per phase (ms a step).
+rounds (ABAB...), after one untimed run (the first run of a session on the namespace hosts waits
+~2 ms a step longer for its migrants). Prints each run's particle-steps/s and the peers' mean wait
+per phase (ms a step).
 
     .venv/bin/python scripts/investigations/network_ab.py NEW_TREE OLD_TREE [--delays 5 1] [--rounds 3]
 
@@ -47,16 +49,21 @@ def main():
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--steps", type=int, default=200)
     a = ap.parse_args()
-    for delay in a.delays:
+    for i, delay in enumerate(a.delays):
         speeds = {str(t): [] for t in a.trees}
-        for _ in range(a.rounds):
-            for tree in a.trees:
+        runs = [(None, a.trees[0])] if i == 0 else []
+        runs += [(r, tree) for r in range(a.rounds) for tree in a.trees]
+        for r, tree in runs:
+            if True:
                 env = dict(os.environ, PYTHONPATH=str(tree.resolve()))
                 out = subprocess.run([sys.executable, "-c", RUN, str(tree.resolve()), str(a.steps), str(delay)],
                                      env=env, capture_output=True, text=True)
                 value = eval(out.stdout.strip().splitlines()[-1]) if out.returncode == 0 and out.stdout.strip() else None
                 if value is None:
                     print(f"{delay:g} ms {tree}: failed\n{out.stderr[-800:]}")
+                    continue
+                if r is None:
+                    print(f"{delay:g} ms {str(tree):<24} {value[0]:.3e} particle-steps/s (untimed: the warm-up run)")
                     continue
                 speeds[str(tree)].append(value[0])
                 waits = ", ".join(f"{ph} {ms:.2f}" for ph, ms in value[1].items() if ms >= 0.05)
