@@ -109,6 +109,7 @@ class Simulation:
         self._add_extra(self._state)
         self.grid = model.host_grid
         self._early = None  # (rows, their density's counts or None): lists filtered before the decision
+        self.rows_before_decision = 0  # over the run: rows a peer listed (and summed) while the decision travelled
         self.solver = SOLVERS[scene.sph.solver](self)  # the pressure solver's hooks into the step (solvers.py)
 
         self.t = 0.0
@@ -454,6 +455,7 @@ class Simulation:
             with self.timers("grid"):
                 e.neighbours(early, filter_only=True)
             self._early = (early, None if density is None else density(early))
+            self.rows_before_decision += early.shape[0]
 
         every = yield from halo.reduce_values(self, "lists", min(moved2, 1e300) if moved2 == moved2 else 1e300,
                                               meanwhile=None if early is None else filter_early)

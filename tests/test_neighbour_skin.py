@@ -288,6 +288,9 @@ def test_the_interior_rows_run_while_moved_ghosts_travel_and_overlap_off_gives_t
     # travelled, and both give the same bits
     assert all(h.overlapped_by_phase.get("moved", 0) > 0 for h in runs["true"][0].halos)
     assert all(h.overlapped_rows == 0 for h in runs["false"][0].halos)
+    # (and listed and summed them before that, while the build decision travelled)
+    assert all(p.rows_before_decision > 0 for p in runs["true"][0].peers)
+    assert all(p.rows_before_decision == 0 for p in runs["false"][0].peers)
     for key in ("id", "x", "v", "rho"):
         assert np.array_equal(runs["true"][1][key], runs["false"][1][key]), key
 
