@@ -33,47 +33,28 @@ class UsageError(Exception):
     pass
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{text!r} must be >= 0")
-    return value
-
-
-def _count(text: str) -> int:
-    """An integer >= 1: a number of particles, peers, rounds, steps timed, pixels or frames."""
-    value = _positive_int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r} must be >= 1")
-    return value
-
-
-def _pixels(text: str) -> int:
-    value = _count(text)
-    if value > MAX_PIXELS:
-        raise argparse.ArgumentTypeError(f"{text!r}: at most {MAX_PIXELS} pixels a side")
-    return value
+def _integer(least: int, most: int | None = None, unit: str = ""):
+    """An argparse type: an integer from ``least`` to ``most`` (``unit`` names what ``most`` counts)."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        if value < least:
+            raise argparse.ArgumentTypeError(f"{text!r} must be >= {least}")
+        if most is not None and value > most:
+            raise argparse.ArgumentTypeError(f"{text!r}: at most {most:,} {unit}")
+        return value
+    return parse
 
 
 MAX_PIXELS = 16384  # a side of a rendered frame: the usual largest texture of an off-screen renderer
 MAX_STEPS = 10**9  # as the scene's time.steps: a longer run is a typo, not a plan
-
-
-def _steps(text: str) -> int:
-    value = _positive_int(text)
-    if value > MAX_STEPS:
-        raise argparse.ArgumentTypeError(f"{text!r}: at most {MAX_STEPS:,} steps")
-    return value
-
-
-def _bench_steps(text: str) -> int:
-    value = _steps(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r}: a benchmark times at least 1 step")
-    return value
+_positive_int = _integer(0)
+_count = _integer(1)                              # particles, peers, rounds, frames a second
+_pixels = _integer(1, MAX_PIXELS, "pixels a side")
+_steps = _integer(0, MAX_STEPS, "steps")
+_bench_steps = _integer(1, MAX_STEPS, "steps")    # a benchmark times at least one step
 
 
 def _skin(text: str) -> float:

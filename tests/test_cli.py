@@ -236,11 +236,11 @@ def test_bad_options_exit_2_before_anything_runs(args, fragments, tmp_path, caps
 
 @pytest.mark.parametrize("argv,fragments", [
     (["bench", "--sizes", "0"], ["--sizes", "must be >= 1"]),
-    (["bench", "--steps", "0"], ["--steps", "at least 1 step"]),
+    (["bench", "--steps", "0"], ["--steps", "must be >= 1"]),
     (["bench", "--peers", "0"], ["--peers", "must be >= 1"]),
     (["bench", "--network", "--repeat", "0"], ["--repeat", "must be >= 1"]),
     (["render", "runs/x", "--size", "0", "10"], ["--size", "must be >= 1"]),
-    (["render", "runs/x", "--size", "20000", "10"], ["--size", "at most 16384"]),
+    (["render", "runs/x", "--size", "20000", "10"], ["--size", "at most 16,384 pixels"]),
     (["render", "runs/x", "--fps", "0"], ["--fps", "must be >= 1"]),
     (["peer", "x.toml", "--rank", "0", "--world", "0", "--run-id", "r"], ["--world", "must be >= 1"]),
 ], ids=["bench-sizes-0", "bench-steps-0", "bench-peers-0", "bench-repeat-0", "render-size-0", "render-size-huge",
