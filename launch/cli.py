@@ -727,24 +727,14 @@ def _output_dir(flag: str, out: Path) -> Path:
 
 def _output_file(flag: str, path: Path):
     """A file an option asks to write at the end of a long run, checked before anything runs: not a
-    folder, and a file can be made in the nearest existing folder above it (tried with a temporary file
-    there, removed at once: a permission bit does not tell, e.g. under /proc)."""
-    import tempfile
+    folder, and its folder is one or can become one (``_output_dir``)."""
     try:
-        if path.is_dir():
-            raise UsageError(f"{flag} {str(path)!r}: is a folder; name a file, e.g. {flag} results.json")
-        above = path.absolute().parent
-        while not above.exists():
-            above = above.parent
-        if not above.is_dir():
-            raise UsageError(f"{flag} {str(path)!r}: {above} is a file, so nothing can be written under it")
-        with tempfile.TemporaryFile(dir=above):
-            pass
-    except OSError as e:
-        raise UsageError(f"{flag} {_short_text(str(path))}: cannot write there "
-                         f"({getattr(e, 'strerror', None) or e})") from None
-    except ValueError as e:  # a NUL byte in the name
-        raise UsageError(f"{flag} {_short_text(str(path))}: not a usable path ({e})") from None
+        folder = path.is_dir()
+    except (OSError, ValueError) as e:  # a name too long, a NUL byte
+        raise UsageError(f"{flag} {_short_text(str(path))}: not a usable path ({getattr(e, 'strerror', None) or e})") from None
+    if folder:
+        raise UsageError(f"{flag} {str(path)!r}: is a folder; name a file, e.g. {flag} results.json")
+    _output_dir(flag, path.absolute().parent)
 
 
 def _short_text(text: str, most: int = 80) -> str:

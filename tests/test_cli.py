@@ -264,7 +264,7 @@ def test_output_paths_nothing_can_be_written_to_are_refused_before_anything_runs
     cases = [
         (["bench", "--sizes", "1000", "--json", "/proc/x.json"], "cannot write there"),
         (["bench", "--sizes", "1000", "--json", str(tmp_path)], "is a folder"),
-        (["bench", "--sizes", "1000", "--json", str(a_file / "x.json")], "is a file"),
+        (["bench", "--sizes", "1000", "--json", str(a_file / "x.json")], "exists and is not a folder"),
         (["validate", "hydrostatic", "--quick", "--out", "/proc/x"], "cannot write there"),
         (["validate", "hydrostatic", "--quick", "--out", str(a_file)], "exists and is not a folder"),
         (["study", "--quick", "--out", "/proc/x"], "cannot write there"),
