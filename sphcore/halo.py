@@ -382,9 +382,8 @@ class PeerHalo:
         particle changes owner; the neighbours' ghost rows of the last build get their rows' new x, v,
         m and carried extras (not their ids or reference positions, which stay), in the order of that
         build, overlapped like exchange 2 (``receive_ghosts``; a backend that does not sort its ghosts
-        apart waits here). Sent here unless ``send_moved`` sent it with the decision."""
-        if MOVED not in self._pending:
-            self.send_moved(sim)
+        apart waits here). Every peer sent it with the decision (``send_moved``): a reuse means every
+        peer's rows allowed one."""
         if not (self.overlap and sim.engine.sorts_ghosts_apart):
             yield from self.receive_ghosts(sim, MOVED)
 
