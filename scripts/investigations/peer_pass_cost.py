@@ -1,0 +1,83 @@
+"""What does being a peer cost, free of another process and of waiting? Two peers of the 3D dam break
+stepped in turn in one process (the in-process transport delivers at once) against one process of the
+same particles, one numba thread, fixed dt: ms per step of each and the stage totals (summary.json's
+names). Then the density pass alone, called again and again on the arrays of the last step: each peer's
+and the single process's, and each peer's once more after its positions were copied into a fresh
+array (where the arrays lie in memory, not what they hold).
+
+    .venv/bin/python scripts/investigations/peer_pass_cost.py [--spacing 0.00782973528233773] [--steps 60]
+
+The default spacing is the bench's 197,676 particles; --spacing 0.012428930023815439 its 49,152."""
+import argparse
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))
+
+import numba  # noqa: E402
+import numpy as np  # noqa: E402
+
+from nodes.cluster import InProcessCluster  # noqa: E402
+from sphcore import stages as st  # noqa: E402
+from sphcore.scene import load_scene  # noqa: E402
+from sphcore.solver import Simulation  # noqa: E402
+
+
+def median_ms(f, repeat=9):
+    f()
+    times = []
+    for _ in range(repeat):
+        t = time.perf_counter()
+        f()
+        times.append(time.perf_counter() - t)
+    return 1e3 * float(np.median(times))
+
+
+def density_ms(sim):
+    prm = sim._ramped_params()
+    return median_ms(lambda: sim.engine.run(st.DENSITY, prm=prm, dt_prev=sim.dtype.type(sim.dt_prev), commit=False))
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--spacing", type=float, default=0.00782973528233773)
+    ap.add_argument("--steps", type=int, default=60)
+    ap.add_argument("--overlap", choices=("true", "false"), default="true", help="decomposition.overlap")
+    a = ap.parse_args()
+    numba.set_num_threads(1)
+    sc = load_scene(ROOT / "configs" / "dam_break.toml", ["time.mode='fixed'", "time.dt=1e-4",
+                                                          f"particles.spacing={a.spacing}",
+                                                          f"decomposition.overlap={a.overlap}"])
+    one = Simulation(sc, "f32", "cpu")
+    cluster = InProcessCluster(sc, 2, "f32", dims=(2, 1, 1))
+    for _ in range(3):  # compiled, the first allocations done
+        one.step()
+        cluster.step()
+    for sim in [one, *cluster.peers]:
+        sim.timers.reset()
+    for round_ in range(2):
+        t0 = time.perf_counter()
+        for _ in range(a.steps):
+            one.step()
+        t1 = time.perf_counter()
+        for _ in range(a.steps):
+            cluster.step()
+        t2 = time.perf_counter()
+        print(f"round {round_}: one process {1e3 * (t1 - t0) / a.steps:.1f} ms a step, two peers in turn "
+              f"{1e3 * (t2 - t1) / a.steps:.1f} ({(t2 - t1) / (t1 - t0):.3f}x)")
+    print("stage seconds, one process:", {k: round(v["total_s"], 3) for k, v in one.timers.summary().items()})
+    for p in cluster.peers:
+        print(f"stage seconds, a peer of {p.state.n_owned} rows + {p.state.n - p.state.n_owned} ghosts:",
+              {k: round(v["total_s"], 3) for k, v in p.timers.summary().items()})
+    print(f"density pass alone: one process {density_ms(one):.2f} ms; peers "
+          + ", ".join(f"{density_ms(p):.2f}" for p in cluster.peers) + " ms")
+    for p in cluster.peers:
+        p.state.x = p.state.x.copy()
+    print("the peers again, their x copied into fresh arrays: " + ", ".join(f"{density_ms(p):.2f}" for p in cluster.peers)
+          + " ms")
+
+
+if __name__ == "__main__":
+    main()
