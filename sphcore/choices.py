@@ -35,6 +35,9 @@ class PressureGradient(IntEnum):
 
     SYMMETRIC = 0   # Monaghan 1992: (p_i / rho_i^2 + p_j / rho_j^2), conserves momentum
     DIFFERENCE = 1  # (p_j - p_i) / (rho_i rho_j) in the bulk, symmetric in the free-surface layer
+    # Not a scene value: DFSPH's solves apply the pressure (physics/dfsph.py) and its forces pass runs
+    # with p = 0, so the model compiles that pass without the pair term (every pair added exactly 0)
+    SOLVED = 2
 
 
 class Integrator(IntEnum):

@@ -15,7 +15,7 @@ import numpy as np
 from sphcore import grid as grid_mod
 from sphcore import stages as st
 from sphcore.boundaries import build_walls, lattice_gradient_moment, lattice_sum, near_wall_cells, table_end
-from sphcore.choices import EOSES, INTEGRATORS, KERNELS, PRESSURE_GRADIENTS, VISCOSITIES, Viscosity
+from sphcore.choices import EOSES, INTEGRATORS, KERNELS, PRESSURE_GRADIENTS, VISCOSITIES, PressureGradient, Viscosity
 from sphcore.params import make_params
 from sphcore.physics.external import ramp_factor
 from sphcore.physics.kernels import kernel_constants, w
@@ -77,7 +77,8 @@ class Model:
         self.kernel = KERNELS[sph.kernel]
         self.eos = EOSES[sph.eos]
         self.viscosity = VISCOSITIES[sph.viscosity]
-        self.pressure_gradient = PRESSURE_GRADIENTS[sph.pressure_gradient]
+        self.pressure_gradient = (PressureGradient.SOLVED if sph.solver == "dfsph"
+                                  else PRESSURE_GRADIENTS[sph.pressure_gradient])
         self.integrator = INTEGRATORS[scene.time.integrator]
         s_w, s_g, s_l = kernel_constants(self.kernel, scene.dim, self.H)
         self.gradient_moment = lattice_gradient_moment(self.kernel, scene.dim, self.H, dx)

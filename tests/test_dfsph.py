@@ -78,6 +78,41 @@ def test_stored_pair_gradients_are_the_computed_ones_and_step_alike():
     assert not Simulation(scene("dam_break", "particles.spacing=0.05"), "f64").model.pair_gradients
 
 
+def test_the_forces_pass_carries_no_pressure_term():
+    # Given the 3D dam break with DFSPH, a few steps in: its forces pass is compiled without the pair
+    # pressure term (PressureGradient.SOLVED), because the solves apply the pressure and p = 0 there
+    from sphcore.choices import PressureGradient
+    sim = Simulation(scene("dam_break", "particles.spacing=0.05", "sph.solver='dfsph'", "time.dt=0.004"), "f64")
+    assert sim.model.choices["pressure_gradient"] == PressureGradient.SOLVED
+    assert Simulation(scene("dam_break", "particles.spacing=0.05"), "f64").model.choices["pressure_gradient"] == \
+        PressureGradient.SYMMETRIC
+    for _ in range(5):
+        sim.step()
+    sim._neighbours()
+    e, s, n = sim.engine, sim.state, sim.state.n_owned
+    e.run(stages.DENSITY, prm=sim.prm, dt_prev=sim.dtype.type(sim.dt_prev), commit=False)
+    e.run(stages.DFSPH_FACTOR, prm=sim.prm)  # p = 0
+    assert not np.any(s.p[:s.n])
+
+    def forces(gradient):
+        sim.model.choices["pressure_gradient"] = int(gradient)
+        e.run(stages.FORCES, prm=sim.prm)
+        return s.a[:n].copy()
+    # When the pass runs with and without the term at p = 0
+    solved, symmetric = forces(PressureGradient.SOLVED), forces(PressureGradient.SYMMETRIC)
+    # Then the accelerations agree (round-off apart: the licences reassociate the sums)
+    assert np.max(np.abs(solved - symmetric)) <= 1e-12 * np.max(np.abs(symmetric))
+    # and a pressure put in by hand moves the symmetric pass only: the solved pass has no pair term to read
+    # it (the walls' push reads p_i in both: compared away from the walls)
+    g = sim.grid
+    c = g.cells_of(s.x[:n])
+    away = e.array("wall_near")[(c[:, 2] * g.ncell[1] + c[:, 1]) * g.ncell[0] + c[:, 0]] == 0
+    assert away.sum() >= 50  # of 768: a coarse tank is mostly wall layer
+    s.p[:s.n] = 1000.0 * (1.0 + s.x[:s.n, 2])
+    assert np.max(np.abs(forces(PressureGradient.SYMMETRIC)[away] - symmetric[away])) > 1.0
+    assert np.array_equal(forces(PressureGradient.SOLVED)[away], solved[away])
+
+
 def test_the_memory_estimate_counts_the_stored_pair_gradients():
     # Given the dam break with WCSPH, with DFSPH on lists, and with DFSPH walking the cells
     from sphcore.scene import (PAIR_GRADIENT_BYTES, SceneError as Refused, _check_resources, resource_estimate,

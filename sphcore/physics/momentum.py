@@ -79,8 +79,10 @@ def acceleration_row(kernel, viscosity, pressure_gradient, periodic, neighbours,
                 byz += vg * dy * dz
                 bzz += vg * dz * dz
                 f = like(fd, 0.0)
-            else:
+            elif pressure_gradient == 0:  # PressureGradient.SYMMETRIC
                 f = pressure_pair(m[j], p_rho2_i, p[j], rho[j], dw_over_r)
+            else:  # PressureGradient.SOLVED: DFSPH's solves apply the pressure (p = 0 here)
+                f = like(dw_over_r, 0.0)
             if viscosity == 1:  # Viscosity.ARTIFICIAL
                 vdotx = ((v[i, 0] - v[j, 0]) * dx + (v[i, 1] - v[j, 1]) * dy + (v[i, 2] - v[j, 2]) * dz)
                 f += artificial_pair(m[j], vdotx, r2, rho_i, rho[j], dw_over_r, prm.alpha, prm.c0, prm.h)
