@@ -50,7 +50,7 @@ x += dt v*. Time steps are limited by the flow speed, not by a speed of sound.
 from numba import njit
 from sphcore.physics.continuity import density_rate_pair
 from sphcore.physics.pairs import gradient, span_rows, spans, walk_start
-from sphcore.physics.walls import wall_density_gradient
+from sphcore.physics.walls import near_wall, wall_density_gradient
 from sphcore.physics.real import like
 
 # The solvers' convergence test sums |s_i| / rho0 over all particles of all peers. Each row's share is
@@ -160,7 +160,7 @@ def inverse_diagonal(gx, gy, gz, wx, wy, wz, sum_sq, d0):
 
 @njit(cache=True, inline="always")
 def dfsph_factor_row(kernel, periodic, neighbours, pair_gradients, prm, i, x, m, rho, nbr, counts, cells, cell_begin,
-                     cell_end, grad_w, wall_kind, wall_data, wall_tables, fill, p, wgrad, inv_d, lam_sum):
+                     cell_end, grad_w, wall_kind, wall_data, wall_tables, wall_near, fill, p, wgrad, inv_d, lam_sum):
     """DFSPH set-up of row i at the step's positions: the wall gradient g_i^wall, 1 / D_i, and p_i = 0
     (the forces stage then gives the non-pressure accelerations); returns rho_i / rho0 - 1 quantised
     (dfsph.quantized_offset; summed over all rows: the mean density). With ``pair_gradients`` the
@@ -183,7 +183,11 @@ def dfsph_factor_row(kernel, periodic, neighbours, pair_gradients, prm, i, x, m,
             gz += m_j * wz
             sum_sq += m_j * m_j * (wx * wx + wy * wy + wz * wz)
     rho_i = rho[i]
-    wx, wy, wz = wall_density_gradient(kernel, prm, wall_kind, wall_data, wall_tables, x, i, rho_i, fill[i])
+    wx = like(rho_i, 0.0)  # zero, and not evaluated, in a cell no wall reaches (as the density pass's share)
+    wy = like(rho_i, 0.0)
+    wz = like(rho_i, 0.0)
+    if near_wall(cells, wall_near, x, i):
+        wx, wy, wz = wall_density_gradient(kernel, prm, wall_kind, wall_data, wall_tables, x, i, rho_i, fill[i])
     wgrad[i, 0] = wx
     wgrad[i, 1] = wy
     wgrad[i, 2] = wz
