@@ -55,7 +55,7 @@ class Model:
     gradient_moment (boundaries.lattice_gradient_moment); walls; mass (kg per particle); host_grid,
     grid_lo (float64 origin), lo (origin in the run's dtype), periodic (0/1); nu (m^2/s, 0 without a
     physical viscosity); prm (params.Params); the flags dfsph, pair_gradients (DFSPH reads stored
-    grad W_ij), continuity, use_xsph, use_shifting, use_drift, use_vorticity, use_diffusion, use_damping;
+    m_j grad W_ij), continuity, use_xsph, use_shifting, use_drift, use_vorticity, use_diffusion, use_damping;
     force_terms ((stage, scene value) of stages.FORCE_TERMS that are on); extra_names (the arrays carried
     in state.extra)."""
 
@@ -95,8 +95,8 @@ class Model:
         self.periodic = int(self.host_grid.periodic)
         self.nu = sph.nu if self.viscosity in (Viscosity.MULLER, Viscosity.MORRIS) else 0.0
         self.dfsph = sph.solver == "dfsph"
-        # DFSPH's factor and dozen solver passes a step read grad W_ij stored per list entry by the density pass
-        # (physics/pairs.gradient; 3 numbers per entry, 780 B a particle in f32): on the CPU, with
+        # DFSPH's factor and dozen solver passes a step read m_j grad W_ij stored per list entry by the density
+        # pass (physics/pairs.mass_gradient; 3 numbers per entry, 780 B a particle in f32): on the CPU, with
         # lists. The GPU recomputes (memory is its limit; not measured there).
         self.pair_gradients = stores_pair_gradients(scene, backend)
         self.prm = make_params(

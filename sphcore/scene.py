@@ -1435,7 +1435,7 @@ BYTES_PER_CELL = 32
 # x and v) and the host mirror of the state. Measured: the peak RSS of setting up the 3D dam break at
 # 10 M particles grows by 108 B per particle in float32 and 80 B in float64 (scripts/bench_setup.py).
 HOST_BYTES_PER_PARTICLE = {"cpu": BYTES_PER_PARTICLE, "cuda": 160}
-# DFSPH on the CPU with lists stores grad W_ij per list entry (model.pair_gradients): 3 float64 per
+# DFSPH on the CPU with lists stores m_j grad W_ij per list entry (model.pair_gradients): 3 float64 per
 # entry of the default list capacity (64 + a spare column).
 PAIR_GRADIENT_BYTES = 3 * 65 * 8
 
@@ -1459,7 +1459,7 @@ def pressure_scale(s: Scene, length: float) -> float:
 
 
 def stores_pair_gradients(s: Scene, backend: str = "cpu") -> bool:
-    """Whether a run stores grad W_ij per list entry (model.pair_gradients): DFSPH, lists, the CPU."""
+    """Whether a run stores m_j grad W_ij per list entry (model.pair_gradients): DFSPH, lists, the CPU."""
     return s.sph.solver == "dfsph" and s.run.neighbours == "lists" and backend == "cpu"
 
 

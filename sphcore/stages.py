@@ -55,8 +55,8 @@ CHOICES = MappingProxyType({
     "periodic": ((0, 1), 0, "1 if any axis is periodic: minimum-image separations and wrapping"),
     "neighbours": ((NEIGHBOUR_LISTS, CELL_WALK), NEIGHBOUR_LISTS,
                    "how a neighbour pass finds j: the stored lists, or a walk of the grid cells around i (grid.py)"),
-    "pair_gradients": ((0, 1), 0, "DFSPH: 1 if the density pass stores grad W_ij per list entry (grad_w) and the "
-                                  "DFSPH passes read it (lists on the CPU: pairs.gradient)"),
+    "pair_gradients": ((0, 1), 0, "DFSPH: 1 if the density pass stores m_j grad W_ij per list entry (grad_w) and "
+                                  "the DFSPH passes read it (lists on the CPU: pairs.mass_gradient)"),
     "continuity": ((0, 1), 0, "1 if the density is carried by the continuity equation (sph.density)"),
     "divergence": ((0, 1), 0, "DFSPH: 1 for the divergence solve on v, 0 for the density solve on v*"),
     "add": ((0, 1), 0, "shifting: 1 adds to dv (XSPH wrote it), 0 writes it"),
@@ -82,7 +82,7 @@ ARGUMENTS = MappingProxyType({
     # the grid (grid.Grid / cuda.DeviceGrid)
     "nbr": ("nbr", "neighbour lists: row k holds i's neighbour rows j"),
     "counts": ("counts", "neighbour list lengths"),
-    "grad_w": ("pairs", "grad W_ij of i's k-th list entry, [c, i, k] (1/m^4 in 3D; with pair_gradients: "
+    "grad_w": ("pairs", "m_j grad W_ij of i's k-th list entry, [c, i, k] (kg/m^4 in 3D; with pair_gradients: "
                         "the density pass writes it)"),
     "cells": ("cells", "the grid's geometry for the cell walk (grid.Cells)"),
     "cell_begin": ("cell_rows", "first row of every cell (rows sorted by cell, id)"),

@@ -43,7 +43,7 @@ def test_diagonal_is_the_response_of_a_particle_to_its_own_pressure():
 
 
 def test_stored_pair_gradients_are_the_computed_ones_and_step_alike():
-    # Given the 3D dam break with DFSPH on the CPU with lists: the solves read grad W_ij stored per list entry
+    # Given the 3D dam break with DFSPH on the CPU with lists: the solves read m_j grad W_ij stored per list entry
     sc = scene("dam_break", "particles.spacing=0.05", "sph.solver='dfsph'", "time.dt=0.004")
     stored = Simulation(sc, "f64")
     assert stored.model.pair_gradients and stored.model.choices["pair_gradients"] == 1
@@ -54,7 +54,7 @@ def test_stored_pair_gradients_are_the_computed_ones_and_step_alike():
     for _ in range(15):
         stored.step()
         computed.step()
-    # Then the stored entries are grad W_ij = (dW/dr / r) x_ij of the positions they were stored at
+    # Then the stored entries are m_j grad W_ij = m_j (dW/dr / r) x_ij of the positions they were stored at
     stored.refresh()  # lists, factor and solve at the present positions
     s, g = stored.state, stored.grid
     grad = stored.engine.array("grad_w")
@@ -64,7 +64,7 @@ def test_stored_pair_gradients_are_the_computed_ones_and_step_alike():
         j = g.nbr[i, :g.counts[i]]
         xij = s.x[i] - s.x[j]
         q = np.linalg.norm(xij, axis=1) / prm.H
-        expected = (-20.0 * prm.s_g / prm.H ** 2 * (1.0 - q) ** 3)[:, None] * xij  # Wendland C2 (kernels.py)
+        expected = (s.m[j] * -20.0 * prm.s_g / prm.H ** 2 * (1.0 - q) ** 3)[:, None] * xij  # Wendland C2 (kernels.py)
         assert np.allclose(grad[:, i, :g.counts[i]].T, expected, rtol=1e-12, atol=0.0)
     # and both runs advance alike, with the same iterations (round-off apart: the licences reassociate)
     assert stored.solver_stats == computed.solver_stats

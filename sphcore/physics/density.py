@@ -34,8 +34,8 @@ def density_row(kernel, eos, periodic, neighbours, pair_gradients, continuity, p
     (relative to a moving wall's for its share, motion.py)
     (stored back if ``commit``; a carried 0 starts at rho0). Returns i's neighbour count twice (their
     sum and maximum over the rows are the step's neighbour statistics). (density.py, continuity.py,
-    eos.py, walls.py). With ``pair_gradients`` (DFSPH, lists) it also stores grad W_ij of every list
-    entry, read by the DFSPH factor and solves (pairs.gradient)."""
+    eos.py, walls.py). With ``pair_gradients`` (DFSPH, lists) it also stores m_j grad W_ij of every
+    list entry, read by the DFSPH factor and solves (pairs.mass_gradient)."""
     rho_i = m[i] * prm.w0
     rate = like(rho_i, 0.0)
     found = 0  # neighbours of i (the step's neighbour statistics)
@@ -51,7 +51,8 @@ def density_row(kernel, eos, periodic, neighbours, pair_gradients, continuity, p
             rho_i += density_pair(kernel, m[j], r_ij, prm.H, prm.s_w)
             if pair_gradients:
                 wx, wy, wz = computed_gradient(kernel, dx, dy, dz, r2, prm)
-                store_gradient(pair_gradients, grad_w, i, k, wx, wy, wz)
+                m_j = m[j]
+                store_gradient(pair_gradients, grad_w, i, k, m_j * wx, m_j * wy, m_j * wz)
             if continuity:
                 g = pair_dw_dr_over_r(kernel, r2, r_ij, prm.H, prm.s_g)  # 0 for coincident particles
                 rate += density_rate_pair(m[j], v[i, 0] - v[j, 0], v[i, 1] - v[j, 1], v[i, 2] - v[j, 2],

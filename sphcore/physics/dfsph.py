@@ -48,8 +48,7 @@ x += dt v*. Time steps are limited by the flow speed, not by a speed of sound.
 """
 
 from numba import njit
-from sphcore.physics.continuity import density_rate_pair
-from sphcore.physics.pairs import gradient, span_rows, spans, walk_start
+from sphcore.physics.pairs import mass_gradient, span_rows, spans, walk_start
 from sphcore.physics.walls import near_wall, wall_density_gradient
 from sphcore.physics.real import like
 
@@ -164,7 +163,7 @@ def dfsph_factor_row(kernel, periodic, neighbours, pair_gradients, prm, i, x, m,
     """DFSPH set-up of row i at the step's positions: the wall gradient g_i^wall, 1 / D_i, and p_i = 0
     (the forces stage then gives the non-pressure accelerations); returns rho_i / rho0 - 1 quantised
     (dfsph.quantized_offset; summed over all rows: the mean density). With ``pair_gradients`` the
-    density pass stored grad W_ij per list entry: this pass and the solves read it.   (dfsph.py)"""
+    density pass stored m_j grad W_ij per list entry: this pass and the solves read it.   (dfsph.py)"""
     gx = like(prm.H, 0.0)
     gy = like(prm.H, 0.0)
     gz = like(prm.H, 0.0)
@@ -173,15 +172,14 @@ def dfsph_factor_row(kernel, periodic, neighbours, pair_gradients, prm, i, x, m,
     for span in range(spans(neighbours, cells)):
         k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
         for k in range(k_lo, k_hi):
-            j, wx, wy, wz, inside = gradient(neighbours, pair_gradients, kernel, periodic, x, nbr, grad_w, i, k, prm,
-                                             cells)
+            j, wx, wy, wz, inside = mass_gradient(neighbours, pair_gradients, kernel, periodic, x, m, nbr, grad_w, i,
+                                                  k, prm, cells)  # m_j grad W_ij
             if not inside:
                 continue
-            m_j = m[j]
-            gx += m_j * wx
-            gy += m_j * wy
-            gz += m_j * wz
-            sum_sq += m_j * m_j * (wx * wx + wy * wy + wz * wz)
+            gx += wx
+            gy += wy
+            gz += wz
+            sum_sq += wx * wx + wy * wy + wz * wz
     rho_i = rho[i]
     wx = like(rho_i, 0.0)  # zero, and not evaluated, in a cell no wall reaches (as the density pass's share)
     wy = like(rho_i, 0.0)
@@ -210,12 +208,12 @@ def dfsph_source_row(kernel, periodic, neighbours, pair_gradients, divergence, p
     for span in range(spans(neighbours, cells)):
         k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
         for k in range(k_lo, k_hi):
-            j, wx, wy, wz, inside = gradient(neighbours, pair_gradients, kernel, periodic, x, nbr, grad_w, i, k, prm,
-                                             cells)
+            j, wx, wy, wz, inside = mass_gradient(neighbours, pair_gradients, kernel, periodic, x, m, nbr, grad_w, i,
+                                                  k, prm, cells)  # m_j grad W_ij
             if not inside:
                 continue
             found += 1
-            rate += density_rate_pair(m[j], v[i, 0] - v[j, 0], v[i, 1] - v[j, 1], v[i, 2] - v[j, 2], wx, wy, wz)
+            rate += (v[i, 0] - v[j, 0]) * wx + (v[i, 1] - v[j, 1]) * wy + (v[i, 2] - v[j, 2]) * wz
     s = source(divergence, rho[i], rho_ref, rate, dt, share)
     inv = inv_d[i]
     if found == 0:  # alone: no neighbour to push, nothing to solve
@@ -239,11 +237,11 @@ def dfsph_update_row(kernel, periodic, neighbours, pair_gradients, prm, i, x, m,
     for span in range(spans(neighbours, cells)):
         k_lo, k_hi = span_rows(neighbours, span, home, i, counts, cells, cell_begin, cell_end)
         for k in range(k_lo, k_hi):
-            j, wx, wy, wz, inside = gradient(neighbours, pair_gradients, kernel, periodic, x, nbr, grad_w, i, k, prm,
-                                             cells)
+            j, wx, wy, wz, inside = mass_gradient(neighbours, pair_gradients, kernel, periodic, x, m, nbr, grad_w, i,
+                                                  k, prm, cells)  # m_j grad W_ij
             if not inside:
                 continue
-            c = m[j] * (l_i + lam[j])
+            c = l_i + lam[j]
             sx += c * wx
             sy += c * wy
             sz += c * wz

@@ -16,14 +16,15 @@ are ``cells.spans``, the cells around i's own (27, or 125 with cells of H / 2: g
 the row itself) and a candidate counts when
 |x_ij|^2 < H^2 and j != i, the test the list builder applies. Both visit the same j in the same order.
 
-A pass that needs only the kernel gradient grad W_ij of each pair (the DFSPH solver's passes, a
-dozen a step) calls ``gradient`` instead of ``candidate``: with the compile-time choice
-``pair_gradients`` it reads grad W_ij from ``grad_w``, where an earlier pass of the same step (the
-density pass, which has r_ij already) stored it per list entry with ``store_gradient``. Reading
-three numbers replaces the separation, the square root, the division and the kernel polynomial: a
-solver pass on the 3D dam break at 49 k particles took a third to a half of the time
-(docs/BENCHMARKS.md). Both ways give the same numbers: the stored value is the one ``gradient``
-would compute.
+A pass that needs only the mass-weighted kernel gradient m_j grad W_ij of each pair (the DFSPH
+solver's passes, a dozen a step: every term they sum carries m_j grad W_ij) calls ``mass_gradient``
+instead of ``candidate``: with the compile-time choice ``pair_gradients`` it reads m_j grad W_ij from
+``grad_w``, where an earlier pass of the same step (the density pass, which has r_ij already) stored
+it per list entry with ``store_gradient``. Reading three numbers replaces the separation, the square
+root, the division and the kernel polynomial: a solver pass on the 3D dam break at 49 k particles
+took a third to a half of the time (docs/BENCHMARKS.md). Storing it with the mass in replaces one
+more gather, m_j, in every pass that reads it (a fifth to a third of a pass, BENCHMARKS). Both ways
+give the same numbers: the stored value is the one ``mass_gradient`` would compute.
 """
 
 import math
@@ -98,8 +99,8 @@ def computed_gradient(kernel, dx, dy, dz, r2, prm):
 
 
 @njit(cache=True, inline="always")
-def gradient(neighbours, pair_gradients, kernel, periodic, x, nbr, grad_w, i, k, prm, cells):
-    """(j, gx, gy, gz, inside) of the k-th candidate of row i: grad W_ij (1/m^4 in 3D) if j is a
+def mass_gradient(neighbours, pair_gradients, kernel, periodic, x, m, nbr, grad_w, i, k, prm, cells):
+    """(j, gx, gy, gz, inside) of the k-th candidate of row i: m_j grad W_ij (kg/m^4 in 3D) if j is a
     neighbour (inside). With ``pair_gradients`` (lists only) it is read from the k-th entry that
     ``store_gradient`` wrote this step; otherwise computed from the positions."""
     if pair_gradients:
@@ -109,12 +110,14 @@ def gradient(neighbours, pair_gradients, kernel, periodic, x, nbr, grad_w, i, k,
         z = like(dx, 0.0)
         return j, z, z, z, False
     gx, gy, gz = computed_gradient(kernel, dx, dy, dz, r2, prm)
-    return j, gx, gy, gz, True
+    m_j = m[j]
+    return j, m_j * gx, m_j * gy, m_j * gz, True
 
 
 @njit(cache=True, inline="always")
 def store_gradient(pair_gradients, grad_w, i, k, gx, gy, gz):
-    """With ``pair_gradients``: keep grad W_ij of row i's k-th list entry for the step's later passes."""
+    """With ``pair_gradients``: keep m_j grad W_ij = (gx, gy, gz) of row i's k-th list entry for the
+    step's later passes (mass_gradient)."""
     if pair_gradients:
         grad_w[0, i, k] = gx
         grad_w[1, i, k] = gy
