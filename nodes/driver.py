@@ -460,7 +460,7 @@ def _gather(peer: PeerRun, recorder: PeerRecorder, controls: Controls, loop: dic
         "particles": recorder.particles, "step_s": recorder.step_s, "wait_s": recorder.wait_s,
         "stages": sim.timers.summary(), "loop": loop, "setup_s": peer.t_setup,
         "bytes_sent": dict(endpoint.bytes_sent), "array_bytes_sent": dict(halo.bytes_sent),
-        "wait_s_per_phase": dict(endpoint.wait_s),
+        "wait_s_per_phase": dict(recorder.wait_s_per_phase),
         "ghosts": int(s.n - n), "ghosts_received": halo.ghosts_received, "leaks": sim.leaks,
         "kinetic_energy": sim.kinetic_energy(),
         "neighbours_sum": sim.neighbours_sum, "neighbours_max": sim.neighbours_max,

@@ -55,22 +55,30 @@ def take_block(sim: Simulation, dec: Decomposition, rank: int):
 
 
 class PeerRecorder:
-    """Per-step bookkeeping of one peer: particles held, step seconds, seconds spent waiting."""
+    """Per-step bookkeeping of one peer: particles held, step seconds, seconds spent waiting; and
+    ``wait_s_per_phase``, the seconds waited per halo phase over the same timed steps (the endpoint's
+    own totals also count the first, compiling step, where a peer waits for the others' compilers)."""
 
     def __init__(self, sim: Simulation, endpoint):
         self.sim, self.endpoint = sim, endpoint
         self.particles, self.step_s, self.wait_s = [], [], []
+        self.wait_s_per_phase = {}
         self._waited = 0.0
+        self._phases_before = {}  # the endpoint's per-phase totals when the timed steps began
 
     def __call__(self, seconds: float | None):
         if seconds is None:  # the first step (compilation): not part of the statistics
             self._waited = sum(self.endpoint.wait_s.values())
+            self._phases_before = dict(self.endpoint.wait_s)
             return
         waited = sum(self.endpoint.wait_s.values())
         self.particles.append(self.sim.engine.n_owned())  # not sim.state: on a GPU that downloads every row
         self.step_s.append(seconds)
         self.wait_s.append(waited - self._waited)
         self._waited = waited
+        self.wait_s_per_phase = {phase: total - self._phases_before.get(phase, 0.0)
+                                 for phase, total in self.endpoint.wait_s.items()
+                                 if total > self._phases_before.get(phase, 0.0)}
         self.endpoint.check()
 
 

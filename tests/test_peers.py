@@ -44,6 +44,8 @@ def test_two_peer_processes_reproduce_one_process_bitwise_with_load_balancing(tm
     assert 1.0 <= s["imbalance"]["particles_max_over_mean"]["mean"] < 2.0  # balancing moved particles over
     for peer in s["per_peer"]:
         assert peer["wait_s_total"] >= 0 and peer["compute_s_total"] > 0
+        # and its waits per phase are those of the same timed steps (not the first, compiling one's)
+        assert sum(peer["wait_s_per_phase"].values()) == pytest.approx(peer["wait_s_total"], rel=1e-9, abs=1e-9)
 
 
 class Lines:
