@@ -13,7 +13,7 @@ from numba import njit
 from sphcore.physics.continuity import density_rate_pair
 from sphcore.physics.eos import pressure
 from sphcore.physics.kernels import pair_dw_dr_over_r, w
-from sphcore.physics.pairs import candidate, computed_gradient, span_rows, spans, store_gradient, walk_start
+from sphcore.physics.pairs import candidate, computed_mass_gradient, span_rows, spans, store_gradient, walk_start
 from sphcore.physics.walls import fill_fraction, moving_wall_rate, near_wall, wall_density_gradient, wall_terms
 from sphcore.physics.real import like
 
@@ -50,9 +50,8 @@ def density_row(kernel, eos, periodic, neighbours, pair_gradients, continuity, p
             r_ij = math.sqrt(r2)
             rho_i += density_pair(kernel, m[j], r_ij, prm.H, prm.s_w)
             if pair_gradients:
-                wx, wy, wz = computed_gradient(kernel, dx, dy, dz, r2, prm)
-                m_j = m[j]
-                store_gradient(pair_gradients, grad_w, i, k, m_j * wx, m_j * wy, m_j * wz)
+                wx, wy, wz = computed_mass_gradient(kernel, m[j], dx, dy, dz, r2, prm)
+                store_gradient(pair_gradients, grad_w, i, k, wx, wy, wz)
             if continuity:
                 g = pair_dw_dr_over_r(kernel, r2, r_ij, prm.H, prm.s_g)  # 0 for coincident particles
                 rate += density_rate_pair(m[j], v[i, 0] - v[j, 0], v[i, 1] - v[j, 1], v[i, 2] - v[j, 2],

@@ -91,10 +91,11 @@ def candidate(neighbours, periodic, x, nbr, i, k, prm, cells):
 
 
 @njit(cache=True, inline="always")
-def computed_gradient(kernel, dx, dy, dz, r2, prm):
-    """grad W_ij = (dW/dr / r) x_ij for a separation x_ij = (dx, dy, dz) with |x_ij|^2 = r2 inside the
-    support; 0 for coincident particles (r = 0: no direction)."""
-    g = pair_dw_dr_over_r(kernel, r2, math.sqrt(r2), prm.H, prm.s_g)
+def computed_mass_gradient(kernel, m_j, dx, dy, dz, r2, prm):
+    """m_j grad W_ij = (m_j dW/dr / r) x_ij for a separation x_ij = (dx, dy, dz) with |x_ij|^2 = r2
+    inside the support; 0 for coincident particles (r = 0: no direction). The mass goes into the
+    scalar: three products a pair, not six."""
+    g = m_j * pair_dw_dr_over_r(kernel, r2, math.sqrt(r2), prm.H, prm.s_g)
     return g * dx, g * dy, g * dz
 
 
@@ -109,9 +110,8 @@ def mass_gradient(neighbours, pair_gradients, kernel, periodic, x, m, nbr, grad_
     if not inside:
         z = like(dx, 0.0)
         return j, z, z, z, False
-    gx, gy, gz = computed_gradient(kernel, dx, dy, dz, r2, prm)
-    m_j = m[j]
-    return j, m_j * gx, m_j * gy, m_j * gz, True
+    gx, gy, gz = computed_mass_gradient(kernel, m[j], dx, dy, dz, r2, prm)
+    return j, gx, gy, gz, True
 
 
 @njit(cache=True, inline="always")
