@@ -8,32 +8,21 @@ one update of the divergence solve, the forces pass and the lists' filter. Media
 To compare two commits, run it in a worktree of each (PYTHONPATH=the worktree), alternating."""
 import argparse
 import sys
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 import numba  # noqa: E402
-import numpy as np  # noqa: E402
 
 from launch import bench  # noqa: E402
+from scripts.investigations.peer_pass_cost import median_ms  # noqa: E402
 from sphcore import stages as st  # noqa: E402
 from sphcore.scene import load_scene  # noqa: E402
 from sphcore.solver import Simulation  # noqa: E402
 
 SCENE = ROOT / "configs" / "dam_break.toml"
 SPACING = 0.012428930023815439  # the bench's 49,152 particles
-
-
-def median_ms(f, repeat=30):
-    f()
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        f()
-        times.append(time.perf_counter() - t0)
-    return 1e3 * float(np.median(times))
 
 
 def main():
@@ -58,7 +47,7 @@ def main():
         "filter": lambda: sim.grid.filter_neighbours(sim.state.x, sim.state.n_owned),
     }
     print(f"{sim.n_particles} particles after {args.steps} steps, {args.threads} threads; ms, median of 30:")
-    print("  ".join(f"{name} {median_ms(run):.2f}" for name, run in passes.items()))
+    print("  ".join(f"{name} {median_ms(run, repeat=30):.2f}" for name, run in passes.items()))
 
 
 if __name__ == "__main__":
