@@ -132,7 +132,8 @@ class DFSPH(WCSPH):
         """The divergence solve on v (if sph.divergence_tolerance > 0)."""
         sim = self.sim
         if sim.scene.sph.divergence_tolerance > 0.0:               # v                -> v (div-free)
-            yield from halo.receive_ghosts(sim, "fields")          # it reads the ghosts' rho (exchange 2)
+            # no ghost's rho or p is read here: exchange 2 travels on while the solve runs (the forces
+            # pass receives it)
             yield from self.solve(halo, prm, True, sim.dt_flow or sim.scene.time.dt)
 
     def correct(self, halo, prm, dt):

@@ -5,7 +5,8 @@ rounds (ABAB...), after one untimed run (the first run of a session on the names
 ~2 ms a step longer for its migrants). Prints each run's particle-steps/s and the peers' mean wait
 per phase (ms a step).
 
-    .venv/bin/python scripts/investigations/network_ab.py NEW_TREE OLD_TREE [--delays 5 1] [--rounds 3]
+    .venv/bin/python scripts/investigations/network_ab.py NEW_TREE OLD_TREE [--delays 5 1] [--rounds 3] \
+        [--set "sph.solver='dfsph'" ...]
 
 A tree is a checkout (e.g. `git worktree add /tmp/wt_old COMMIT`); each run imports only its own."""
 import argparse
@@ -23,10 +24,10 @@ from launch import netns
 from launch.bench_network import _run, PORT
 from launch.bench import _fixed, spacing_for, DEFAULT_SCENE
 fixed = _fixed(DEFAULT_SCENE, spacing_for(DEFAULT_SCENE, 20000))
-steps, delay = int(sys.argv[2]), float(sys.argv[3])
+steps, delay, sets = int(sys.argv[2]), float(sys.argv[3]), sys.argv[4:]
 cmd = [sys.executable, "-m", "launch.cli", "run", str(Path(code) / "configs" / "dam_break.toml"), "--steps",
        str(steps + 1), "--precision", "f32", "--threads", "1", "--no-viewer"]
-for kv in fixed:
+for kv in fixed + sets:
     cmd += ["--set", kv]
 with tempfile.TemporaryDirectory() as tmp:
     tmp = Path(tmp)
@@ -48,6 +49,8 @@ def main():
     ap.add_argument("--delays", type=float, nargs="+", default=[5.0, 1.0], help="one-way delays in ms")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--steps", type=int, default=200)
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a scene override for both trees' runs, after the case's own (repeatable)")
     a = ap.parse_args()
     for i, delay in enumerate(a.delays):
         speeds = {str(t): [] for t in a.trees}
@@ -56,7 +59,7 @@ def main():
         for r, tree in runs:
             if True:
                 env = dict(os.environ, PYTHONPATH=str(tree.resolve()))
-                out = subprocess.run([sys.executable, "-c", RUN, str(tree.resolve()), str(a.steps), str(delay)],
+                out = subprocess.run([sys.executable, "-c", RUN, str(tree.resolve()), str(a.steps), str(delay), *a.set],
                                      env=env, capture_output=True, text=True)
                 value = eval(out.stdout.strip().splitlines()[-1]) if out.returncode == 0 and out.stdout.strip() else None
                 if value is None:
