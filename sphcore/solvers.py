@@ -185,11 +185,15 @@ class DFSPH(WCSPH):
         it = 0
         while True:
             parts = yield from sim._overlapped(halo, travelling, source)
+            # the ghosts' lambda leaves before the error's sum says whether an update follows: both travel
+            # at once, a latency less an iteration. After the last iteration it arrives unused (it is
+            # received at once, with the sum, and overwritten before any pass reads a ghost's lambda).
+            halo.send_ghosts(sim, f"{name}_lam{it}", ("lam",), kind="solver")
             err = yield from halo.reduce_sum(sim, f"{name}_err{it}", sum(int(e) for e in parts))
             mean = err / ERROR_QUANTUM / max(sim.n_particles, 1)
             if (mean <= tolerance and it >= MIN_ITERATIONS[name]) or it >= sph.max_iterations:
+                yield from halo.receive_ghosts(sim, f"{name}_lam{it}")
                 break
-            halo.send_ghosts(sim, f"{name}_lam{it}", ("lam",), kind="solver")
             yield from sim._overlapped(halo, f"{name}_lam{it}", update)
             travelling = f"{name}_v{it}"
             halo.send_ghosts(sim, travelling, (field,), kind="solver")
