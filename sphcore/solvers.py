@@ -178,8 +178,9 @@ class DFSPH(WCSPH):
         # and computes its interior rows while they travel (Simulation._overlapped)
         travelling = None  # the phase carrying the ghosts' velocities the next source reads
         if not divergence:  # warm start: apply the previous step's pressure (lam = kappa dt^2, set by the kick)
-            halo.send_ghosts(sim, "warm_lam", ("lam",), kind="solver")
-            yield from sim._overlapped(halo, "warm_lam", update)
+            # the ghosts' lambda too, from the kappa they carry: the owners' bits, a message (a latency) fewer
+            sim._run(st.DFSPH_WARM_GHOSTS, timer, rows=sim.engine.ghost_rows(), dt=dt_)
+            update(None, True)
             travelling = "warm_v"                                  # ghosts' v* after kick and warm start
             halo.send_ghosts(sim, travelling, (field,), kind="solver")
         it = 0

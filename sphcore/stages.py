@@ -30,7 +30,8 @@ from sphcore.grid import CELL_WALK, NEIGHBOUR_LISTS
 from sphcore.physics.damping import damping_row
 from sphcore.physics.continuity import density_update_row, diffusion_row
 from sphcore.physics.density import density_row
-from sphcore.physics.dfsph import dfsph_factor_row, dfsph_finish_row, dfsph_kick_row, dfsph_source_row, dfsph_update_row
+from sphcore.physics.dfsph import (dfsph_factor_row, dfsph_finish_row, dfsph_kick_row, dfsph_source_row, dfsph_update_row,
+                                   dfsph_warm_ghost_row)
 from sphcore.physics.drag import drag_row
 from sphcore.physics.energy import energy_row
 from sphcore.physics.bodies import body_reaction_row
@@ -242,6 +243,7 @@ OUTLET_PRESSURE = Stage("outlet_pressure", outlet_pressure_row, writes=("rho", "
 STATISTICS = Stage("statistics", statistics_row, writes=(),
                    reduce=("max", "max", "max", "sum")).check()  # max |v|^2, |a|^2, compression; bad rows
 DFSPH_KICK = Stage("dfsph_kick", dfsph_kick_row, writes=("v_star", "lam", "lam_sum")).check()
+DFSPH_WARM_GHOSTS = Stage("dfsph_warm_ghosts", dfsph_warm_ghost_row, writes=("lam",)).check()  # on the ghost rows
 DFSPH_SOURCE = Stage("dfsph_source", dfsph_source_row, writes=("lam_sum", "lam"),
                      reduce=("sum",)).check()  # returns the quantised density error
 DFSPH_UPDATE = Stage("dfsph_update", dfsph_update_row, writes=("v", "lam_sum")).check()
@@ -278,7 +280,7 @@ def overlap_group(*group: Stage) -> tuple:
 ACCELERATIONS = overlap_group(FORCES, DIFFUSION, *FORCE_TERMS)
 
 STAGES = (DENSITY, OUTLET_PRESSURE, DFSPH_FACTOR, FORCES, DIFFUSION, *FORCE_TERMS, VORTICITY, CONFINEMENT, DAMPING, XSPH, SHIFTING,
-          OPEN_BOUNDARY, STATISTICS, DFSPH_KICK, DFSPH_SOURCE, DFSPH_UPDATE, DFSPH_FINISH, DENSITY_UPDATE, INTEGRATE, BOUNDARIES,
+          OPEN_BOUNDARY, STATISTICS, DFSPH_KICK, DFSPH_WARM_GHOSTS, DFSPH_SOURCE, DFSPH_UPDATE, DFSPH_FINISH, DENSITY_UPDATE, INTEGRATE, BOUNDARIES,
           BODY_REACTION, ENERGY)
 
 

@@ -50,6 +50,10 @@ class CpuStages(Engine):
     def n_owned(self):
         return self.sim._state.n_owned
 
+    def ghost_rows(self):
+        s = self.sim._state
+        return np.arange(s.n_owned, s.n, dtype=np.int64)
+
     def array(self, name):
         sim = self.sim
         s = sim._state

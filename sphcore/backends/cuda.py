@@ -345,6 +345,14 @@ def _selected_rows(scanned, n, rows):
 
 
 @cuda.jit
+def _count_from(first, n, out):
+    """out[k] = first + k for k < n."""
+    k = cuda.grid(1)
+    if k < n:
+        out[k] = first + k
+
+
+@cuda.jit
 def _complement(flags, n, out):
     """out[i] = 1 - flags[i] (flags of 0 and 1)."""
     i = cuda.grid(1)
@@ -784,6 +792,14 @@ class CudaStages(Engine):
 
     def n_owned(self):
         return self.d.n_owned
+
+    def ghost_rows(self):
+        """Counted on the device: no row number crosses PCIe."""
+        m = self.d.n - self.d.n_owned
+        rows = cuda.device_array(m, dtype=np.int64)
+        if m:
+            _count_from[blocks(m), BLOCK](self.d.n_owned, m, rows)
+        return rows
 
     def array(self, name):
         d = self.d

@@ -81,6 +81,10 @@ class Engine:
         """The keys of the carried arrays (state.carried_layout): id, x, v, m, "extra_<name>"..."""
         raise NotImplementedError
 
+    def ghost_rows(self):
+        """A backend int64 array of the ghost rows (after the owned ones): a stage run on them."""
+        raise NotImplementedError
+
     def split_rows(self, dec, rank: int, neighbours) -> tuple:
         """(interior, boundary): backend int64 arrays of this step's owned rows (as sorted now) whose
         cells lie in no neighbour's incoming zone (no ghost is within their reach: decomposition.py),

@@ -252,12 +252,25 @@ def dfsph_update_row(kernel, periodic, neighbours, pair_gradients, prm, i, x, m,
 
 
 @njit(cache=True, inline="always")
+def warm_lambda(kappa_i, dt):
+    """lambda_i = kappa_i dt^2: the previous step's pressure, the density solve's warm start."""
+    return kappa_i * dt * dt
+
+
+@njit(cache=True, inline="always")
+def dfsph_warm_ghost_row(i, kappa, dt, lam):
+    """A ghost row's warm-start lambda from the kappa it carries (exchange 1): the bits its owner's
+    kick gives it, with no message (a peer applies the warm start to its ghosts' pressure too)."""
+    lam[i] = warm_lambda(kappa[i], dt)
+
+
+@njit(cache=True, inline="always")
 def dfsph_kick_row(i, v, a, dt, kappa, v_star, lam, lam_sum):
     """v*_i = v_i + dt a_i (non-pressure accelerations); the density solve's warm start is the
     previous step's pressure, lambda_i = kappa_i dt^2 (applied by one update before iterating)."""
     for c in range(3):
         v_star[i, c] = v[i, c] + dt * a[i, c]
-    lam[i] = kappa[i] * dt * dt
+    lam[i] = warm_lambda(kappa[i], dt)
     lam_sum[i] = like(dt, 0.0)
 
 
