@@ -190,11 +190,14 @@ class DFSPH(WCSPH):
             # at once, a latency less an iteration. After the last iteration it arrives unused (it is
             # received at once, with the sum, and overwritten before any pass reads a ghost's lambda).
             halo.send_ghosts(sim, f"{name}_lam{it}", ("lam",), kind="solver")
-            err = yield from halo.reduce_sum(sim, f"{name}_err{it}", sum(int(e) for e in parts))
-            mean = err / ERROR_QUANTUM / max(sim.n_particles, 1)
-            if (mean <= tolerance and it >= MIN_ITERATIONS[name]) or it >= sph.max_iterations:
-                yield from halo.receive_ghosts(sim, f"{name}_lam{it}")
-                break
+            # below the minimum an update follows whatever the error: its sum over the peers is formed
+            # (and waited for) only where it decides, a latency less an iteration below the minimum
+            if it >= MIN_ITERATIONS[name] or it >= sph.max_iterations:
+                err = yield from halo.reduce_sum(sim, f"{name}_err{it}", sum(int(e) for e in parts))
+                mean = err / ERROR_QUANTUM / max(sim.n_particles, 1)
+                if (mean <= tolerance and it >= MIN_ITERATIONS[name]) or it >= sph.max_iterations:
+                    yield from halo.receive_ghosts(sim, f"{name}_lam{it}")
+                    break
             yield from sim._overlapped(halo, f"{name}_lam{it}", update)
             travelling = f"{name}_v{it}"
             halo.send_ghosts(sim, travelling, (field,), kind="solver")
