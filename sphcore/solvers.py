@@ -179,7 +179,9 @@ class DFSPH(WCSPH):
         travelling = None  # the phase carrying the ghosts' velocities the next source reads
         if not divergence:  # warm start: apply the previous step's pressure (lam = kappa dt^2, set by the kick)
             # the ghosts' lambda too, from the kappa they carry: the owners' bits, a message (a latency) fewer
-            sim._run(st.DFSPH_WARM_GHOSTS, timer, rows=sim.engine.ghost_rows(), dt=dt_)
+            ghosts = sim.engine.ghost_rows()
+            if ghosts.shape[0]:                                    # (a single process has none: no launch)
+                sim._run(st.DFSPH_WARM_GHOSTS, timer, rows=ghosts, dt=dt_)
             update(None, True)
             travelling = "warm_v"                                  # ghosts' v* after kick and warm start
             halo.send_ghosts(sim, travelling, (field,), kind="solver")
