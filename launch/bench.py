@@ -24,6 +24,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
+from sphcore.children import module_command, module_env
 from sphcore.output import write_json
 from sphcore.scene import load_scene
 from sphcore.solver import Simulation
@@ -320,14 +321,15 @@ def _peer_cases(scene_path: Path, dx: float, args) -> list[dict]:
                 if peers * threads > cores:
                     continue
                 with tempfile.TemporaryDirectory() as tmp:
-                    cmd = [sys.executable, "-m", "launch.cli", "run", str(scene_path), "--peers", str(peers),
-                           *(["--threads", str(threads)] if args.backend == "cpu" else []),
-                           "--steps", str(args.steps + 1), "--precision", precision,
-                           "--out", tmp, "--quiet", "--no-viewer", "--backend", args.backend,
-                           "--set", "decomposition.balance_every=50", "--set", f"run.neighbour_skin={skin!r}"]
+                    cmd = module_command("launch.cli", "run", str(scene_path), "--peers", str(peers),
+                                         *(["--threads", str(threads)] if args.backend == "cpu" else []),
+                                         "--steps", str(args.steps + 1), "--precision", precision,
+                                         "--out", tmp, "--quiet", "--no-viewer", "--backend", args.backend,
+                                         "--set", "decomposition.balance_every=50", "--set",
+                                         f"run.neighbour_skin={skin!r}")
                     for kv in _fixed(scene_path, dx):
                         cmd += ["--set", kv]
-                    done = subprocess.run(cmd, capture_output=True, text=True)
+                    done = subprocess.run(cmd, capture_output=True, text=True, env=module_env())
                     if done.returncode != 0:
                         print(f"  {peers} peers: failed ({done.returncode}): {done.stderr[-2000:]}", file=sys.stderr)
                         continue

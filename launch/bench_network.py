@@ -28,6 +28,7 @@ import tempfile
 from pathlib import Path
 
 from launch import netns
+from sphcore.children import module_command, module_env
 
 DELAYS_MS = (0.0, 1.0, 5.0)
 PORT = 7447
@@ -35,7 +36,7 @@ PORT = 7447
 
 def _run(cmd: list[str], out: Path) -> tuple[float, dict] | None:
     """(particle-steps/s, {phase: ms per step that the peers waited, the mean over peers})."""
-    done = subprocess.run(cmd + ["--out", str(out), "--quiet"], capture_output=True, text=True)
+    done = subprocess.run(cmd + ["--out", str(out), "--quiet"], capture_output=True, text=True, env=module_env())
     if done.returncode != 0:
         print(f"  failed ({done.returncode}): {done.stderr[-1500:]}", file=sys.stderr)
         return None
@@ -48,8 +49,8 @@ def _run(cmd: list[str], out: Path) -> tuple[float, dict] | None:
 
 
 def network_cases(scene_path: Path, fixed: list[str], steps: int, precision: str, repeat: int) -> list[dict]:
-    base = [sys.executable, "-m", "launch.cli", "run", str(scene_path), "--steps", str(steps + 1), "--precision",
-            precision, "--threads", "1", "--no-viewer"]
+    base = module_command("launch.cli", "run", str(scene_path), "--steps", str(steps + 1), "--precision",
+                          precision, "--threads", "1", "--no-viewer")
     for kv in fixed:
         base += ["--set", kv]
     why_not = netns.available()

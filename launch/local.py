@@ -24,6 +24,7 @@ from pathlib import Path
 
 from launch import supervise
 from sphcore import checkpoint
+from sphcore.children import module_command, module_env
 
 log = logging.getLogger("sph.launch")
 
@@ -80,8 +81,8 @@ def security_options(args) -> list[str]:
 def peer_command(config: Path, rank: int, world: int, run_id: str, listen: str, connect: list[str], out: Path,
                  args) -> list[str]:
     source = ["--resume", str(args.resume)] if getattr(args, "resume", None) else [str(config)]
-    cmd = [sys.executable, "-m", "launch.cli", "peer", *source, "--rank", str(rank), "--world", str(world),
-           "--run-id", run_id, "--listen", listen, "--out", str(out), "--timeout", str(args.timeout)]
+    cmd = module_command("launch.cli", "peer", *source, "--rank", str(rank), "--world", str(world),
+                         "--run-id", run_id, "--listen", listen, "--out", str(out), "--timeout", str(args.timeout))
     if getattr(args, "checkpoint_every", None) is not None:
         cmd += ["--checkpoint-every", str(args.checkpoint_every)]
     for ep in connect:
@@ -106,8 +107,8 @@ def run_options(args) -> list[str]:
 
 
 def viewer_command(config: Path, run_id: str, listen: str, n_peers: int, viewer: dict, args) -> list[str]:
-    cmd = [sys.executable, "-m", "launch.cli", "viewer", str(config), "--run-id", run_id, "--listen", listen,
-           "--world", str(n_peers)] + security_options(args)  # (a resumed run gets the checkpoint's scene.toml)
+    cmd = module_command("launch.cli", "viewer", str(config), "--run-id", run_id, "--listen", listen,
+                         "--world", str(n_peers)) + security_options(args)  # (a resumed run gets the checkpoint's scene.toml)
     if viewer["record"]:
         cmd += ["--record", str(viewer["record"]), "--stats", str(Path(viewer["record"]).with_name("viewer.json"))]
     if viewer["spawn"]:
@@ -176,7 +177,8 @@ def run_local_peers(config: Path, n_peers: int, out: Path, args, viewer: dict | 
     ports = free_ports(n_peers + 1)
     endpoints = [f"{scheme}/127.0.0.1:{p}" for p in ports[:n_peers]]
     viewer_endpoint = f"{scheme}/127.0.0.1:{ports[-1]}"
-    env = dict(os.environ, NUMBA_NUM_THREADS=str(threads), PYTHONUNBUFFERED="1", RERUN_ANALYTICS="0")
+    # this code in every child, whatever folder the run was started in (sphcore/children.py)
+    env = module_env(dict(os.environ, NUMBA_NUM_THREADS=str(threads), PYTHONUNBUFFERED="1", RERUN_ANALYTICS="0"))
     log.info("run %s: %d peers on this machine, %d numba threads each, endpoints %s", run_id, n_peers, threads,
              ", ".join(endpoints))
     view = None

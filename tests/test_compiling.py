@@ -144,3 +144,40 @@ def test_a_compile_lock_that_is_never_released_delays_a_process_and_does_not_han
     # Then it waited LOCK_WAIT_S, said so, and went on to compile it itself
     assert 0.5 <= waited < 5.0
     assert "scaled: waited 0.5 s for another process to compile it; compiling it here" in caplog.text
+
+
+def _plant(folder, package, marker):
+    """A package named like one of ours in ``folder`` that leaves ``marker`` when imported (as another
+    checkout's, or anybody's in a shared folder such as /tmp, would run its code)."""
+    (folder / package).mkdir()
+    (folder / package / "__init__.py").write_text(f"open({str(marker)!r}, 'w').close()\n")
+
+
+def test_the_compile_helper_imports_this_code_wherever_it_starts_and_refuses_other_sources(tmp_path):
+    # Given a folder holding a planted sphcore package and another copy of grid.py
+    import pickle
+    import shutil
+    import subprocess
+    import sys
+    from sphcore import grid
+    from sphcore.backends import literal
+    from sphcore.children import module_command, module_env
+    marker = tmp_path / "planted code ran"
+    _plant(tmp_path, "sphcore", marker)
+    copy = tmp_path / "grid.py"
+    shutil.copy(grid.__file__, copy)
+    # When the compile helper is started there as it is, and asked to compile from that copy
+    helper = subprocess.Popen(module_command("sphcore.backends.literal"), env=module_env(), cwd=tmp_path,
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    literal._send(helper.stdin, pickle.dumps(("sphcore.grid", str(copy), "_filter_neighbours", ())))
+    answer = literal._receive(helper.stdout)
+    helper.stdin.close()
+    assert helper.wait(timeout=120) == 0, helper.stderr.read()[-2000:]
+    # Then the planted package never ran, and the helper refused a module that is not the file asked for
+    # (it compiles only the asking process's sources into the cache)
+    assert not marker.exists()
+    assert answer.startswith(b"ImportError") and b"in the asking process" in answer, answer
+    # (where ``python -m`` alone, as the helper was started before, runs the planted code)
+    subprocess.run([sys.executable, "-m", "sphcore.backends.literal"], cwd=tmp_path, input=b"", capture_output=True,
+                   timeout=120)
+    assert marker.exists()

@@ -160,3 +160,24 @@ def peers_running():
             if "launch.cli" in cmd and "peer" in cmd:
                 found.append((int(entry.name), cmd))
     return found
+
+
+def test_a_run_started_in_a_folder_with_planted_packages_runs_this_code_in_every_process(tmp_path):
+    # Given a folder holding packages named like ours (another checkout's, or anybody's in /tmp), each
+    # leaving a mark when imported
+    from sphcore.children import module_env
+    marks = []
+    for package in ("sphcore", "nodes", "launch"):
+        (tmp_path / package).mkdir()
+        marks.append(tmp_path / f"{package} ran")
+        (tmp_path / package / "__init__.py").write_text(f"open({str(marks[-1])!r}, 'w').close()\n")
+    # When a 2-peer run with its viewer is started from there (the launcher itself as `sph` is: its
+    # folder not on the path)
+    launcher = [sys.executable, "-P", "-c", "import sys; from launch.cli import main; sys.exit(main())"]
+    done = subprocess.run(launcher + ["run", str(ROOT / "configs" / "tiny.toml"), "--peers", "2", "--steps", "3",
+                                      "--precision", "f64", "--out", str(tmp_path / "out"), "--quiet"],
+                          cwd=tmp_path, env=module_env(), capture_output=True, text=True, timeout=600)
+    # Then it ran, and no process (peers, viewer, compile helper) imported the planted code
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert (tmp_path / "out" / "final.npz").exists()
+    assert not any(m.exists() for m in marks), [m.name for m in marks if m.exists()]

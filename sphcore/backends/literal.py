@@ -18,7 +18,10 @@ symbols to the JIT's copies. So a specialisation missing from the cache is compi
 process (``python -m sphcore.backends.literal``, started at the first miss and kept for the
 process's life), which saves it to the cache, and this process loads it from there like every other.
 Every process then runs the same object code. Where the cache cannot be written the kernel is
-compiled here, with a warning that runs are then reproducible only within this process.
+compiled here, with a warning that runs are then reproducible only within this process. The helper
+imports this process's code wherever it was started (sphcore/children.py) and refuses a module it
+finds in another file than the asking process does: kernels compiled from other sources would be
+saved under this process's cache keys.
 
 **Compiled once among processes.** The peers of a run started cold miss the same specialisations at
 the same moment. A lock file per specialisation in the cache folder lets one of them compile it;
@@ -30,6 +33,7 @@ import hashlib
 import importlib
 import importlib.util
 import logging
+import os
 import pickle
 import struct
 import subprocess
@@ -42,6 +46,8 @@ import numba
 import numpy as np
 from numba.core import event, types
 from numba.core.caching import NullCache
+
+from sphcore.children import module_command, module_env
 
 log = logging.getLogger("sph.compile")
 
@@ -167,7 +173,8 @@ def _compile_elsewhere(dispatcher, sig):
     with _helper_lock:
         try:
             if _helper is None or _helper.poll() is not None:
-                _helper = subprocess.Popen([sys.executable, "-m", "sphcore.backends.literal"],
+                # this process's code, not a folder of that name where it was started (sphcore/children.py)
+                _helper = subprocess.Popen(module_command("sphcore.backends.literal"), env=module_env(),
                                            stdin=subprocess.PIPE, stdout=subprocess.PIPE)
             _send(_helper.stdin, pickle.dumps((*_where(dispatcher), sig)))
             answer = _receive(_helper.stdout)
@@ -186,6 +193,13 @@ def _warn_compiled_here(name):
         log.warning("%s was compiled in this process, not loaded from numba's cache: this run's last bits may "
                     "differ from other processes' (a restarted peer, a resumed run); see sphcore/backends/literal.py",
                     name)
+
+
+def _same_file(a, b) -> bool:
+    try:
+        return a is not None and os.path.samefile(a, b)
+    except OSError:
+        return False
 
 
 def _serve():
@@ -207,6 +221,9 @@ def _serve():
                     module = importlib.util.module_from_spec(spec)
                     sys.modules[name] = module
                     spec.loader.exec_module(module)
+            if not _same_file(getattr(module, "__file__", None), path):
+                # kernels compiled from other sources would be cached under the asking process's keys
+                raise ImportError(f"{name} is {getattr(module, '__file__', None)} here, {path} in the asking process")
             target = getattr(module, attribute)
             target = getattr(target, "dispatcher", target)
             target.compile(sig)
