@@ -28,7 +28,6 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 import numba  # noqa: E402
-import numpy as np  # noqa: E402
 
 from launch.validate import dam_break_scene  # noqa: E402
 from sphcore.physics.wall_friction import B_SMOOTH, KAPPA  # noqa: E402
