@@ -1,9 +1,10 @@
 """What does being a peer cost, free of another process and of waiting? Two peers of the 3D dam break
 stepped in turn in one process (the in-process transport delivers at once) against one process of the
 same particles, one numba thread, fixed dt: ms per step of each and the stage totals (summary.json's
-names). Then the density pass alone, called again and again on the arrays of the last step: each peer's
-and the single process's, and each peer's once more after its positions were copied into a fresh
-array (where the arrays lie in memory, not what they hold).
+names). Then each neighbour pass alone, called again and again on the arrays of the last step, in ns
+per owned row (one process; each peer in one call and split as a step computes it); and the density
+pass in ms: each peer's and the single process's, and each peer's once more after its positions
+were copied into a fresh array (where the arrays lie in memory, not what they hold).
 
     .venv/bin/python scripts/investigations/peer_pass_cost.py [--spacing 0.00782973528233773] [--steps 60]
 
@@ -40,6 +41,32 @@ def density_ms(sim):
     return median_ms(lambda: sim.engine.run(st.DENSITY, prm=prm, dt_prev=sim.dtype.type(sim.dt_prev), commit=False))
 
 
+def pass_per_row(one, cluster):
+    """Each neighbour pass alone, called again and again on the arrays of the last step: ns per owned
+    row in one process and in each peer, the peer's rows in one call and split into its interior and
+    boundary rows as a step computes them (while a halo travels, then after)."""
+    prm = one._ramped_params()
+
+    def passes(sim, rows):
+        f = sim.dtype.type
+        return {"density": lambda: sim.engine.run(st.DENSITY, prm=prm, rows=rows, dt_prev=f(sim.dt_prev), commit=False),
+                "filter": lambda: sim.grid.filter_neighbours(sim.state.x, sim.state.n_owned, rows),
+                "forces": lambda: sim.engine.run(st.FORCES, prm=prm, rows=rows)}
+
+    n1 = one.state.n_owned
+    for name in ("density", "filter", "forces"):
+        line = f"{name}: one process {1e6 * median_ms(passes(one, None)[name]) / n1:.0f} ns a row; peers"
+        for sim, halo in zip(cluster.peers, cluster.halos):
+            if sim.grid.skin == 0 and name == "filter":
+                continue
+            n = sim.state.n_owned
+            interior, boundary = sim.engine.split_rows(halo.dec, halo.rank, halo.neighbours)
+            whole = median_ms(passes(sim, None)[name])
+            split = median_ms(passes(sim, interior)[name]) + median_ms(passes(sim, boundary)[name])
+            line += f" {1e6 * whole / n:.0f} (split {1e6 * split / n:.0f}, {len(boundary)} boundary rows)"
+        print(line + " ns a row")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--spacing", type=float, default=0.00782973528233773)
@@ -71,6 +98,7 @@ def main():
     for p in cluster.peers:
         print(f"stage seconds, a peer of {p.state.n_owned} rows + {p.state.n - p.state.n_owned} ghosts:",
               {k: round(v["total_s"], 3) for k, v in p.timers.summary().items()})
+    pass_per_row(one, cluster)
     print(f"density pass alone: one process {density_ms(one):.2f} ms; peers "
           + ", ".join(f"{density_ms(p):.2f}" for p in cluster.peers) + " ms")
     for p in cluster.peers:
