@@ -159,6 +159,18 @@ class Mailbox:
     def __contains__(self, key) -> bool:
         return bool(self._mail.get(key))
 
+    def account(self, source: int, most: int = 6) -> str:
+        """What is filed from ``source`` and what was taken from it since the receiver's last step
+        advance, as "(step, phase)" lists (at most ``most`` each): a timeout's report, which tells
+        a message that never came from one that came under another tag."""
+        def listed(keys):
+            keys = sorted(keys)
+            text = ", ".join(f"{step} {phase!r}" for step, phase in keys[:most])
+            return (text + (f" and {len(keys) - most} more" if len(keys) > most else "")) or "none"
+        waiting = [(k[1], k[2]) for k, c in self._mail.items() if k[0] == source and c]
+        taken = [(k[1], k[2]) for k in self._taken if k[0] == source]
+        return f"waiting unread: {listed(waiting)}; taken this step: {listed(taken)}"
+
 
 class InProcessNetwork:
     """Mailboxes in memory, one per (receiver, sender, tag). Arrays are copied on send, as they

@@ -287,8 +287,13 @@ class ZenohEndpoint(CountsDrops):
                 if left <= 0:
                     state = (f"peer {source} not answering for {quiet:.1f} s (still connected: its process is busy, "
                              "hung or stuck)" if source in self._alive else f"peer {source} not connected")
+                    # what did come from it: a message under another tag, or drops, tell a lost message
+                    # from a peer that never got that far
+                    drops = self._drops.counts.get(str(source), {})
+                    dropped = ", ".join(f"{n} {reason}" for reason, n in sorted(drops.items())) or "none"
                     raise PeerTimeout(f"peer {self.rank}, step {step}: no {phase!r} message from peer {source} "
-                                      f"after {self.timeout:g} s: {state}")
+                                      f"after {self.timeout:g} s: {state} (from peer {source}: "
+                                      f"{self._mail.account(source)}; dropped: {dropped})")
                 self._cv.wait(max(0.01, min(left, 0.5, warn_at - quiet)))
 
     def _check_lost(self, step, phase):

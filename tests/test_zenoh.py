@@ -106,9 +106,11 @@ def test_endpoints_deliver_by_source_and_tag_and_drop_foreign_or_malformed(pair)
         time.sleep(0.01)
     assert b.dropped == 2
     assert a.bytes_sent["positions"] > x.nbytes
+    b.send(0, (5, "fields"), {"x": x[:3]})  # a message under another tag: the report names it
     with pytest.raises(PeerTimeout, match=r"peer 0, step 5: no 'positions' message from peer 1 after 3 s: "
-                                          r"peer 1 not answering for 3\.\d s \(still connected"):
+                                          r"peer 1 not answering for 3\.\d s \(still connected") as timeout:
         a.wait(1, (5, "positions"))  # the foreign run's message never reached us
+    assert "(from peer 1: waiting unread: 5 'fields'; taken this step: none; dropped: none)" in str(timeout.value)
     assert b.drops == {"0": {"foreign": 1, "malformed": 1}}
 
 
@@ -284,6 +286,8 @@ def test_the_step_window_duplicates_and_bounds_of_the_mailbox(pair):
     got = b.wait(0, (11, "fields"), check)
     # Then it gets the third, the two before are counted as rejected, the one after as a duplicate
     assert seen == [0.0, 1.0, 2.0] and got["x"][0] == 2.0
+    # (a timeout's report lists what waits from peer 0 and what was taken: step 10's flood is freed)
+    assert b._mail.account(0) == "waiting unread: 12 'fields'; taken this step: 11 'fields'"
     counts = b.drops["0"]
     assert counts["count"] == 2 and counts["duplicate"] == 2
     a.send(1, (11, "fields"), {"x": np.full(2, 9.0)})         # after delivery: a duplicate too
@@ -377,3 +381,14 @@ def test_a_stopped_peer_is_told_from_one_that_ended(how, caplog):
         os.kill(child.pid, signal.SIGKILL)
         child.wait(10)
         me.close()
+
+
+def test_a_mailbox_accounts_for_what_a_source_sent():
+    box = transport.Mailbox(transport.DropLog("test"), window=None)
+    assert box.account(3) == "waiting unread: none; taken this step: none"
+    for step, phase in [(7, "fields"), (6, "moved"), (7, "lists"), (8, "moved")]:
+        box.put(3, step, phase, {}, 10)
+    box.put(4, 6, "moved", {}, 10)          # another source's: not listed
+    box.pop((3, 6, "moved"))
+    box.delivered((3, 6, "moved"))
+    assert box.account(3, most=2) == "waiting unread: 7 'fields', 7 'lists' and 1 more; taken this step: 6 'moved'"
