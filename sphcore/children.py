@@ -13,8 +13,9 @@ the helper ran it). A child here is started with ``-P`` (no working folder on it
 code this process imported, wherever it was started and however that code was found (installed,
 on PYTHONPATH, or the working folder of a source checkout).
 
-The peers a hosts file starts over ssh (launch/hosts.py, launch/slurm) run in the repository folder
-the user names (``--remote-dir``), on purpose; they are not started from here.
+The peers a hosts file starts over ssh (launch/hosts.py) run in the repository folder the user names
+(``--remote-dir``), on purpose; the SLURM scripts (launch/slurm) run the installed package with -P.
+Neither is started from here.
 """
 from __future__ import annotations
 

@@ -45,4 +45,5 @@ fi
 if [ "$rank" != 0 ]; then
     args+=(--quiet)
 fi
-exec "${SPH_PYTHON:-python3}" -m launch.cli peer "$config" "${args[@]}" "$@"
+# -P: the installed sphfluid, never a launch/ or sphcore/ folder in the submit folder (sphcore/children.py)
+exec "${SPH_PYTHON:-python3}" -P -m launch.cli peer "$config" "${args[@]}" "$@"
