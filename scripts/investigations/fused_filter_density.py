@@ -11,8 +11,8 @@ sum, m_j grad W_ij stored per entry; no walls) timed
 All three give the same lists and the same bits (checked). Medians of 30 calls, ms, three rounds.
 
 Read it with care: these loops are compiled without the reassociation licence of the real neighbour
-passes (backends/generate.FASTMATH), under which the real list-mode density loop is vectorised (2.9
-ms where this one takes 5.6-5.8 at WCSPH's skin). Built into the real pass, the fused loop lost
+passes (backends/generate.FASTMATH), and the real WCSPH density pass stores no gradient: it takes 2.9
+ms where this one takes 5.6-5.8 at WCSPH's skin. Built into the real pass, the fused loop lost
 (docs/BENCHMARKS.md, 2026-12-06 evening).
 
     .venv/bin/python scripts/investigations/fused_filter_density.py [--solver dfsph]
