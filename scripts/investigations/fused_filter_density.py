@@ -54,18 +54,25 @@ def pair(x, m, i, j, xi, yi, zi, H):
     return m[j] * w, m[j] * g * dx, m[j] * g * dy, m[j] * g * dz
 
 
+@njit(inline="always")
+def filter_row(x, i, cand, cand_counts, H2, nbr, counts):
+    """Row i's candidates within H into its list, branch-free (grid.filter_row's loop); the count."""
+    cap = nbr.shape[1] - 1
+    xi, yi, zi = x[i, 0], x[i, 1], x[i, 2]
+    c = 0
+    for k in range(cand_counts[i]):
+        j = cand[i, k]
+        dx, dy, dz = xi - x[j, 0], yi - x[j, 1], zi - x[j, 2]
+        nbr[i, min(c, cap)] = j
+        c += 1 if dx * dx + dy * dy + dz * dz < H2 else 0
+    counts[i] = c
+    return c
+
+
 @njit(parallel=True)
 def filter_lists(x, n, cand, cand_counts, H2, nbr, counts):
-    cap = nbr.shape[1] - 1
     for i in prange(n):
-        xi, yi, zi = x[i, 0], x[i, 1], x[i, 2]
-        c = 0
-        for k in range(cand_counts[i]):
-            j = cand[i, k]
-            dx, dy, dz = xi - x[j, 0], yi - x[j, 1], zi - x[j, 2]
-            nbr[i, min(c, cap)] = j
-            c += 1 if dx * dx + dy * dy + dz * dz < H2 else 0
-        counts[i] = c
+        filter_row(x, i, cand, cand_counts, H2, nbr, counts)
 
 
 @njit(parallel=True)
@@ -101,16 +108,9 @@ def fused_branch(x, m, n, cand, cand_counts, H2, H, nbr, counts, rho, grad):
 
 @njit(parallel=True)
 def fused_per_row(x, m, n, cand, cand_counts, H2, H, nbr, counts, rho, grad):
-    cap = nbr.shape[1] - 1
     for i in prange(n):
+        c = filter_row(x, i, cand, cand_counts, H2, nbr, counts)
         xi, yi, zi = x[i, 0], x[i, 1], x[i, 2]
-        c = 0
-        for k in range(cand_counts[i]):
-            j = cand[i, k]
-            dx, dy, dz = xi - x[j, 0], yi - x[j, 1], zi - x[j, 2]
-            nbr[i, min(c, cap)] = j
-            c += 1 if dx * dx + dy * dy + dz * dz < H2 else 0
-        counts[i] = c
         r = m[i]
         for k in range(c):
             w, gx, gy, gz = pair(x, m, i, nbr[i, k], xi, yi, zi, H)
