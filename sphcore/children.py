@@ -4,11 +4,11 @@ run's peers and viewer (launch/local.py), the benchmark's runs (launch/bench.py,
 ``python -m MODULE`` puts the working folder first on the child's import path, so a ``sphcore/``,
 ``nodes/`` or ``launch/`` folder there is imported instead of this code: another checkout's, or one
 anybody could write in a shared folder such as /tmp. Its code then runs under the user's name, and
-the compile helper saves kernels compiled from its sources under this installation's cache keys,
-so that every later run loads them (measured 2026-12-06: `sph validate dam_break --quick` started
-from the folder of another checkout, with one changed line that changes no value, gave a late front
-speed of 1.557 on its first run and 1.522 on every run after; with a planted ``sphcore/__init__.py``
-the helper ran it). A child here is started with ``-P`` (no working folder on its path, Python
+the compile helper compiles the other sources, not the asking process's (measured 2026-12-06: `sph
+validate dam_break --quick` started from the folder of another checkout, with one changed line that
+changes no value, gave a late front speed of 1.557 on its first run and 1.522 on every run after,
+likely because the helper cached the other checkout's kernels under that checkout's key and the run
+compiled its own in-process; with a planted ``sphcore/__init__.py`` the helper ran it). A child here is started with ``-P`` (no working folder on its path, Python
 3.11) and with the folder that holds this process's ``sphcore`` first on PYTHONPATH: it imports the
 code this process imported, wherever it was started and however that code was found (installed,
 on PYTHONPATH, or the working folder of a source checkout).
