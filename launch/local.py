@@ -107,8 +107,9 @@ def run_options(args) -> list[str]:
 
 
 def viewer_command(config: Path, run_id: str, listen: str, n_peers: int, viewer: dict, args) -> list[str]:
+    # (a resumed run gets the checkpoint's scene.toml)
     cmd = module_command("launch.cli", "viewer", str(config), "--run-id", run_id, "--listen", listen,
-                         "--world", str(n_peers)) + security_options(args)  # (a resumed run gets the checkpoint's scene.toml)
+                         "--world", str(n_peers)) + security_options(args)
     if viewer["record"]:
         cmd += ["--record", str(viewer["record"]), "--stats", str(Path(viewer["record"]).with_name("viewer.json"))]
     if viewer["spawn"]:

@@ -8,10 +8,12 @@ the compile helper compiles the other sources, not the asking process's (measure
 validate dam_break --quick` started from the folder of another checkout, with one changed line that
 changes no value, gave a late front speed of 1.557 on its first run and 1.522 on every run after,
 likely because the helper cached the other checkout's kernels under that checkout's key and the run
-compiled its own in-process; with a planted ``sphcore/__init__.py`` the helper ran it). A child here is started with ``-P`` (no working folder on its path, Python
-3.11) and with the folder that holds this process's ``sphcore`` first on PYTHONPATH: it imports the
-code this process imported, wherever it was started and however that code was found (installed,
-on PYTHONPATH, or the working folder of a source checkout).
+compiled its own in-process; with a planted ``sphcore/__init__.py`` the helper ran it).
+
+A child here is started with ``-P`` (no working folder on its path, Python 3.11) and with the folder
+that holds this process's ``sphcore`` first on PYTHONPATH: it imports the code this process
+imported, wherever it was started and however that code was found (installed, on PYTHONPATH, or the
+working folder of a source checkout).
 
 The peers a hosts file starts over ssh (launch/hosts.py) run in the repository folder the user names
 (``--remote-dir``), on purpose; the SLURM scripts (launch/slurm) run the installed package with -P.

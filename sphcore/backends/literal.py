@@ -20,8 +20,8 @@ process's life), which saves it to the cache, and this process loads it from the
 Every process then runs the same object code. Where the cache cannot be written the kernel is
 compiled here, with a warning that runs are then reproducible only within this process. The helper
 imports this process's code wherever it was started (sphcore/children.py) and refuses a module it
-finds in another file than the asking process does: kernels compiled from other sources would be
-saved under this process's cache keys.
+finds in another file than the asking process does: it would compile other sources than the
+asking process's.
 
 **Compiled once among processes.** The peers of a run started cold miss the same specialisations at
 the same moment. A lock file per specialisation in the cache folder lets one of them compile it;
@@ -222,7 +222,7 @@ def _serve():
                     sys.modules[name] = module
                     spec.loader.exec_module(module)
             if not _same_file(getattr(module, "__file__", None), path):
-                # kernels compiled from other sources would be cached under the asking process's keys
+                # it would compile other sources than the asking process's
                 raise ImportError(f"{name} is {getattr(module, '__file__', None)} here, {path} in the asking process")
             target = getattr(module, attribute)
             target = getattr(target, "dispatcher", target)
