@@ -465,7 +465,8 @@ def _gather(peer: PeerRun, recorder: PeerRecorder, controls: Controls, loop: dic
         "kinetic_energy": sim.kinetic_energy(),
         "neighbours_sum": sim.neighbours_sum, "neighbours_max": sim.neighbours_max,
         "neighbours_max_over_run": sim.max_neighbours, "rebalances": halo.rebalances,
-        "dropped_messages": endpoint.dropped, "dropped": endpoint.drops, "threads": numba.get_num_threads(),
+        "dropped_messages": endpoint.dropped, "dropped": endpoint.drops, "resends": endpoint.resends,
+        "threads": numba.get_num_threads(),
         "device_transfer": sim.engine.transfer(),
         "overlap": {"interior_rows": halo.overlapped_rows, "boundary_rows": halo.after_rows},
         "cuts": [list(c) for c in halo.dec.cuts], "controls": controls.applied,
@@ -480,7 +481,8 @@ def _gather(peer: PeerRun, recorder: PeerRecorder, controls: Controls, loop: dic
     parts, peers = [final], [stats]
     for q in range(1, world):
         parts.append((yield from endpoint.recv(q, (step, "final"), _final_check(sim, q, stats, parts, peers))))
-    peers[0].update(dropped_messages=endpoint.dropped, dropped=endpoint.drops)  # what came in while gathering too
+    peers[0].update(dropped_messages=endpoint.dropped, dropped=endpoint.drops,  # what came in while gathering too
+                    resends=endpoint.resends)
     arrays = merge_by_id(parts, ("id", "x", "v", "rho"))
     if len(arrays["id"]) != sim.n_particles or np.any(np.diff(arrays["id"]) <= 0):
         raise RuntimeError(f"gathered {len(arrays['id'])} particles with "

@@ -63,6 +63,11 @@ class Endpoint(Transport, Protocol):
     def dropped(self) -> int:
         """How many messages were dropped so far (the sum of ``drops``)."""
 
+    @property
+    def resends(self) -> dict:
+        """{"asked": {source: n}, "sent": {dest: n}}: how often this peer asked a silent peer for a
+        message again, and sent one of its own again when asked (empty where nothing is lost)."""
+
     def at_step(self, step: int) -> None:
         """This peer is at ``step``: messages for earlier steps are replays and are dropped, as are
         those too far ahead. Never blocks."""

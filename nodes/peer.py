@@ -393,7 +393,9 @@ def _final_check(sim: Simulation, q: int, own: dict, parts: list, peers: list):
                 and all(isinstance(stats[k], list) and len(stats[k]) == len(own[k])
                         for k in ("particles", "step_s", "wait_s"))
                 and _counts_ok(stats["device_transfer"], own["device_transfer"])
-                and _counts_ok(stats["overlap"], own["overlap"])):
+                and _counts_ok(stats["overlap"], own["overlap"])
+                and _tallies_ok(stats["dropped"], 2) and _tallies_ok(stats["resends"], 2)
+                and set(stats["resends"]) == set(own["resends"])):
             raise Reject("stats", f"{what}: statistics are not a peer's of this run")
         peers.append(stats)
 
@@ -407,6 +409,16 @@ def _counts_ok(theirs, own) -> bool:
         return own is None and theirs is None
     return (isinstance(theirs, dict) and set(theirs) == set(own)
             and all(type(v) is int and 0 <= v < 2**62 for v in theirs.values()))
+
+
+def _tallies_ok(value, depth: int) -> bool:
+    """``value`` is tallies ``depth`` dicts deep, as ``dropped`` ({source: {reason: n}}) and
+    ``resends`` ({"asked" or "sent": {rank: n}}) are: short string keys, whole counts >= 0 at the
+    bottom. Anything else from a peer would break the summary that adds them up."""
+    if depth == 0:
+        return type(value) is int and 0 <= value < 2**62
+    return (isinstance(value, dict) and len(value) <= 4096
+            and all(isinstance(k, str) and len(k) <= 64 and _tallies_ok(v, depth - 1) for k, v in value.items()))
 
 
 def minimum_halo_bytes(ghosts: int, itemsize: int) -> int:
@@ -442,6 +454,7 @@ def peer_summary(peers: list[dict], base: dict, world: int, itemsize: int) -> di
         "peers": world,
         "dropped_messages": int(sum(p["dropped_messages"] for p in peers)),  # by source: per_peer[r]["dropped"]
         "dropped_by_reason": by_reason,
+        "resent_messages": int(sum(sum(p["resends"]["sent"].values()) for p in peers)),  # per_peer[r]["resends"]
         "leaks": int(sum(p["leaks"] for p in peers)),
         "kinetic_energy": float(sum(p["kinetic_energy"] for p in peers)),
         "neighbours": {"mean": total_neighbours / base["particles"], "max": max(p["neighbours_max"] for p in peers),
@@ -469,7 +482,7 @@ def peer_summary(peers: list[dict], base: dict, world: int, itemsize: int) -> di
             "bytes_sent": p["bytes_sent"], "array_bytes_sent": p["array_bytes_sent"],
             "stages": {k: v["total_s"] for k, v in p["stages"].items()},
             "rebalances": p["rebalances"], "dropped_messages": p["dropped_messages"], "dropped": p["dropped"],
-            "cuts": p["cuts"],
+            "resends": p["resends"], "cuts": p["cuts"],
             "controls": p["controls"],
             "overlap": p["overlap"],
         } for p in peers],

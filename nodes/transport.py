@@ -89,13 +89,15 @@ class Mailbox:
         self._held = {}           # source -> [messages, bytes]
 
     def put(self, source: int, step: int, phase: str, arrays: dict, size: int, raw: bytes | None = None,
-            budget: int | None = None) -> bool:
+            budget: int | None = None, asked: bool = False) -> bool:
         """File a message of ``size`` bytes (``raw``: its bytes, to tell a replayed copy); False if it
-        was dropped."""
+        was dropped. ``asked``: the receiver asked the source to send this message again, so a second
+        copy, or one that comes after the receiver moved on, is expected and not counted as a drop."""
         what = f"step {step} {phase!r}"
         if self.step is not None and self.window is not None:
             if step < self.step:
-                self.drop(source, "old step", f"{what}: this peer is at step {self.step} (a replay)")
+                if not asked:
+                    self.drop(source, "old step", f"{what}: this peer is at step {self.step} (a replay)")
                 return False
             if step > self.step + self.window:
                 self.drop(source, "future step", f"{what}: this peer is at step {self.step}, a peer of the run "
@@ -103,11 +105,13 @@ class Mailbox:
                 return False
         key = (source, step, phase)
         if key in self._taken:
-            self.drop(source, "duplicate", f"{what}: already received")
+            if not asked:
+                self.drop(source, "duplicate", f"{what}: already received")
             return False
         candidates = self._mail.get(key, [])
         if raw is not None and any(c[2] == raw for c in candidates):
-            self.drop(source, "duplicate", f"{what}: a copy of a message already waiting")
+            if not asked:
+                self.drop(source, "duplicate", f"{what}: a copy of a message already waiting")
             return False
         held = self._held.setdefault(source, [0, 0])
         if len(candidates) >= MAX_CANDIDATES:
@@ -191,8 +195,19 @@ class InProcessNetwork:
 
 
 class CountsDrops:
-    """What an endpoint dropped, from its ``_drops`` (a DropLog): the same two views for every
+    """What an endpoint dropped, from its ``_drops`` (a DropLog), and the messages it asked for again
+    and sent again (``_asked_again``, ``_sent_again``: {rank: count}): the same views for every
     transport, so the peer's summary reads them alike."""
+
+    _asked_again: dict = {}
+    _sent_again: dict = {}
+
+    @property
+    def resends(self) -> dict:
+        """{"asked": {source: n}, "sent": {dest: n}}: messages this peer asked a silent peer to send
+        again, and messages it sent again when asked (nodes/zenoh_transport.py; none in memory)."""
+        return {"asked": {str(k): v for k, v in sorted(self._asked_again.items())},
+                "sent": {str(k): v for k, v in sorted(self._sent_again.items())}}
 
     @property
     def drops(self) -> dict:

@@ -116,6 +116,11 @@ def rank_from_key(key: str) -> int:
     return int(str(key).rsplit("/", 1)[-1])
 
 
+def is_phase(name) -> bool:
+    """Whether ``name`` can be a message's phase (as ``decode`` checks it)."""
+    return isinstance(name, str) and bool(_NAME.match(name))
+
+
 def is_int(value) -> bool:
     """A JSON integer (``True`` is not one, though Python says it is an int)."""
     return isinstance(value, int) and not isinstance(value, bool)
@@ -198,7 +203,7 @@ def decode(data: bytes, run: str, dest: int, world: int, sources=None,
             raise WireError(f"source {source!r} is not one of {sorted(sources)}", "wrong source")
     elif not (0 <= source < world and source != dest):
         raise WireError(f"source rank {source!r} is not another peer of this {world}-peer run", "wrong source")
-    if not (is_int(step) and -1 <= step <= MAX_STEP) or not (isinstance(phase, str) and _NAME.match(phase)):
+    if not (is_int(step) and -1 <= step <= MAX_STEP) or not is_phase(phase):
         raise WireError(f"bad step {_short(step)} or phase {_short(phase)}")
     if not isinstance(table, list):
         raise WireError("array table is not a list")

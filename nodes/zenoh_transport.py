@@ -16,6 +16,16 @@ and messages from the future), a duplicate, beyond the per-source bounds of the 
 rejected by the receiver's check. Control commands are taken only from the controller's key and
 acknowledged on ``wire.ack_key`` by rank 0 (nodes/peer.py).
 
+A message that does not come is asked for again: while a peer waits for a message from a connected
+peer that has been silent as long as the "not answering" warning takes, it sends that peer a small
+request (phase ``resend``, the wanted phase's name as its one array) each time it warns. Every peer
+keeps the messages it sent over the last ``KEEP_STEPS`` steps and, on its next send or wait, sends
+the asked one again, the same bytes, at most ``MAX_RESENDS`` times each. A request for a message not
+sent yet is ignored (a slow peer sends it anyway); the receiver takes the first copy and ignores the
+others without counting them as drops. Both sides count what they did (``resends``, summary.json).
+Zenoh's links are reliable, so this is a guard, not the transport: a run once hung here with each of
+two peers waiting for the other's message of one step and neither in the other's mailbox.
+
 If a peer of the run disappears, its token vanishes and every waiting peer raises ``PeerLost`` at
 once, saying whether it left (its links closed while it was talking: its process ended) or went
 quiet first and timed out a lease later (stopped or hung, or its machine or network down). A peer
@@ -29,6 +39,8 @@ import logging
 import re
 import threading
 import time
+
+import numpy as np
 
 from nodes import control, security, wire
 from nodes.endpoint import PeerLost, PeerTimeout, TransportError
@@ -44,6 +56,11 @@ LEASE_MS = 5000
 NOT_ANSWERING_S = 2.0   # a connected peer silent this long (while we wait for it) is reported
 SILENT_FRACTION = 0.8   # a token that vanishes after this fraction of a lease of silence: a link timed out
 PENDING_FACTOR = 4      # bytes waiting per source: this many of the largest message of the phase
+RESEND = "resend"       # the phase of a request to send a message again (never a halo phase)
+KEEP_STEPS = 2          # a peer keeps what it sent this step and the two before (a neighbour is never
+                        # more than one step behind: every step ends in an all-to-all reduction)
+MAX_RESENDS = 3         # copies of one message sent again, however often it is asked for
+MAX_REQUESTS = 64       # requests waiting to be served (more are dropped: a genuine peer asks for one)
 _RANK = re.compile(r"^[0-9]{1,9}$")
 
 
@@ -90,6 +107,13 @@ class ZenohEndpoint(CountsDrops):
         self._usual_wait = {}     # rank -> moving average of the waits that ended with a message from it
         self._closing = False
         self.bytes_sent = {}      # phase -> bytes on the wire (headers included)
+        self._sent = {}           # (dest, step, phase) -> the payload sent, over the last KEEP_STEPS steps
+        self._sent_step = -1      # the latest step this peer sent a message of
+        self._requests = []       # (requester, step, phase) asked for again, not served yet
+        self._served = {}         # (requester, step, phase) -> copies sent again
+        self._asked = {}          # (source, step, phase) -> times this peer asked for it again
+        self._asked_again = {}    # source -> requests this peer sent it (summary.json "resends")
+        self._sent_again = {}     # requester -> messages sent to it again
         self.wait_s = {}          # phase -> seconds blocked in recv
         self.session = zenoh.open(zenoh_config(listen, connect, lease_ms, trust))
         self._publishers = {}
@@ -122,6 +146,9 @@ class ZenohEndpoint(CountsDrops):
         if str(source) != label:  # the key is what access control vouches for; the header must agree
             self._drops(label, "wrong key", f"step {step} {phase!r} on {key} says it is from peer {source}")
             return
+        if phase == RESEND:
+            self._on_request(source, step, arrays)
+            return
         limit = self.message_limit(phase, step)
         if len(payload) > limit:
             self._drops(label, "oversized", f"step {step} {phase!r}: {len(payload)} bytes, this run's largest "
@@ -129,8 +156,68 @@ class ZenohEndpoint(CountsDrops):
             return
         with self._cv:
             self._heard[source] = time.monotonic()
-            if self._mail.put(source, step, phase, arrays, len(payload), payload, PENDING_FACTOR * limit):
+            if self._mail.put(source, step, phase, arrays, len(payload), payload, PENDING_FACTOR * limit,
+                              asked=(source, step, phase) in self._asked):
                 self._cv.notify_all()
+
+    def _on_request(self, source: int, step: int, arrays: dict):
+        """Peer ``source`` asks for our message of ``step`` whose phase ``arrays["phase"]`` names
+        (ASCII bytes): queued for the step loop (``_serve_requests``), which may block on the link."""
+        wanted = arrays.get("phase")
+        name = None
+        if (set(arrays) == {"phase"} and wanted.dtype == np.uint8 and wanted.ndim == 1
+                and 1 <= wanted.shape[0] <= 32):
+            name = bytes(wanted).decode("ascii", "replace")
+        if name is None or not wire.is_phase(name) or name == RESEND:
+            self._drops(source, "malformed", f"step {step} {RESEND!r}: the arrays must be one 'phase', the "
+                                             "ASCII name of a phase (uint8, 1-32 bytes)")
+            return
+        with self._cv:
+            if len(self._requests) >= MAX_REQUESTS:
+                self._drops(source, "inbox full", f"step {step} {RESEND!r}: {MAX_REQUESTS} requests already wait")
+                return
+            self._requests.append((source, step, name))
+            self._cv.notify_all()
+
+    def _serve_requests(self):
+        """Send again what peers asked for (the step loop's thread, never the lock holder): a message
+        this peer keeps is sent as it was, at most MAX_RESENDS times; one older than what it keeps, or
+        further ahead than a peer of this run can be, is a drop; one not sent yet is left to come."""
+        with self._cv:
+            requests, self._requests = self._requests, []
+            now = max(self._sent_step, -1 if self._mail.step is None else self._mail.step)
+        for key in requests:
+            requester, step, phase = key
+            what = f"step {step} {phase!r}"
+            payload = self._sent.get(key)
+            if payload is None:
+                if step < now - KEEP_STEPS or step > now + STEP_WINDOW:
+                    self._drops(requester, "resend unknown", f"{what} asked for again: this peer is at step "
+                                                             f"{now} and keeps {KEEP_STEPS} steps back")
+                continue
+            served = self._served.get(key, 0)
+            if served >= MAX_RESENDS:
+                self._drops(requester, "resend limit", f"{what} asked for again: already sent {MAX_RESENDS} more times")
+                continue
+            self._served[key] = served + 1
+            self._sent_again[requester] = self._sent_again.get(requester, 0) + 1
+            log.warning("peer %d: peer %d asked again for our %r message of step %d; sending it again (%d of %d)",
+                        self.rank, requester, phase, step, served + 1, MAX_RESENDS)
+            self._put(requester, payload)
+            self.bytes_sent[phase] = self.bytes_sent.get(phase, 0) + len(payload)
+
+    def _ask_again(self, source: int, step: int, phase: str):
+        """Ask ``source`` to send its ``phase`` message of ``step`` again (``_on_request`` there)."""
+        key = (source, step, phase)
+        with self._cv:
+            self._asked[key] = self._asked.get(key, 0) + 1
+            for old in [k for k in self._asked if k[1] < step - KEEP_STEPS]:
+                del self._asked[old]
+        self._asked_again[source] = self._asked_again.get(source, 0) + 1
+        payload = wire.encode(self.run, step, RESEND, self.rank, source,
+                              {"phase": np.frombuffer(phase.encode("ascii"), dtype=np.uint8)})
+        self._put(source, payload)
+        self.bytes_sent[RESEND] = self.bytes_sent.get(RESEND, 0) + len(payload)
 
     def _on_control(self, sample):
         """A command on the controller's key (with access control, only the controller's identity may
@@ -203,7 +290,21 @@ class ZenohEndpoint(CountsDrops):
     # -- the transport interface ------------------------------------------------------------------
     def send(self, dest: int, tag: tuple, arrays: dict):
         step, phase = tag
+        if phase == RESEND:
+            raise ValueError(f"phase {RESEND!r} is the transport's own")
+        self._serve_requests()
         payload = wire.encode(self.run, step, phase, self.rank, dest, arrays)
+        if step > self._sent_step:  # what a neighbour can no longer ask for is let go
+            self._sent_step = step
+            for key in [k for k in self._sent if k[1] < step - KEEP_STEPS]:
+                del self._sent[key]
+                self._served.pop(key, None)
+        self._sent[(dest, step, phase)] = payload
+        self._put(dest, payload)
+        self.bytes_sent[phase] = self.bytes_sent.get(phase, 0) + len(payload)
+
+    def _put(self, dest: int, payload: bytes):
+        """Hand ``payload`` to Zenoh for peer ``dest``: reliable, and blocking while the link is congested."""
         pub = self._publishers.get(dest)
         if pub is None:
             pub = self.session.declare_publisher(wire.halo_key(self.run, dest, self.rank),
@@ -211,7 +312,6 @@ class ZenohEndpoint(CountsDrops):
                                                  reliability=self._zenoh.Reliability.RELIABLE)
             self._publishers[dest] = pub
         pub.put(payload)
-        self.bytes_sent[phase] = self.bytes_sent.get(phase, 0) + len(payload)
 
     def _frame_publisher(self):
         pub = self._publishers.get("frame")
@@ -271,7 +371,10 @@ class ZenohEndpoint(CountsDrops):
         warn_at = max(self.not_answering_s, 10.0 * self._usual_wait.get(source, 0.0))
         with self._cv:
             self._mail.advance(step)
-            while True:
+        while True:
+            self._serve_requests()  # the peer we wait for may wait for a message of ours again
+            ask = False
+            with self._cv:
                 arrays = self._mail.pop(key)
                 if arrays is not None:
                     return arrays
@@ -281,8 +384,9 @@ class ZenohEndpoint(CountsDrops):
                 quiet = now - max(t0, self._heard.get(source, t0))
                 if quiet >= warn_at and source in self._alive:
                     log.warning("peer %d, step %d: peer %d not answering for %.1f s (still connected); waiting for "
-                                "its %r message", self.rank, step, source, quiet, phase)
+                                "its %r message, asked it to send that again", self.rank, step, source, quiet, phase)
                     warn_at *= 2
+                    ask = True
                 left = deadline - now
                 if left <= 0:
                     state = (f"peer {source} not answering for {quiet:.1f} s (still connected: its process is busy, "
@@ -291,10 +395,15 @@ class ZenohEndpoint(CountsDrops):
                     # from a peer that never got that far
                     drops = self._drops.counts.get(str(source), {})
                     dropped = ", ".join(f"{n} {reason}" for reason, n in sorted(drops.items())) or "none"
+                    asked = self._asked.get(key, 0)
                     raise PeerTimeout(f"peer {self.rank}, step {step}: no {phase!r} message from peer {source} "
                                       f"after {self.timeout:g} s: {state} (from peer {source}: "
-                                      f"{self._mail.account(source)}; dropped: {dropped})")
-                self._cv.wait(max(0.01, min(left, 0.5, warn_at - quiet)))
+                                      f"{self._mail.account(source)}; dropped: {dropped}); asked it for that "
+                                      f"message again {asked} time{'s' * (asked != 1)}")
+                if not ask and not self._requests:
+                    self._cv.wait(max(0.01, min(left, 0.5, warn_at - quiet)))
+            if ask:
+                self._ask_again(source, step, phase)
 
     def _check_lost(self, step, phase):
         if self._lost:
