@@ -451,13 +451,18 @@ class ZenohEndpoint(CountsDrops):
         deadline = time.perf_counter() + timeout
         with self._cv:
             self._closing = True  # peers leaving now is the plan, not a loss
-            while self._alive - {self.rank}:
+        while True:
+            self._serve_requests()  # a peer whose "bye" was lost asks for it again
+            with self._cv:
+                if not self._alive - {self.rank}:
+                    return
                 left = deadline - time.perf_counter()
                 if left <= 0:
                     log.warning("peer %d: peers %s still connected %g s after the end of the run", self.rank,
                                 sorted(self._alive - {self.rank}), timeout)
                     return
-                self._cv.wait(min(left, 0.5))
+                if not self._requests:
+                    self._cv.wait(min(left, 0.5))
 
     def close(self):
         with self._cv:
