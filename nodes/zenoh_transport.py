@@ -19,8 +19,8 @@ acknowledged on ``wire.ack_key`` by rank 0 (nodes/peer.py).
 A message that does not come is asked for again: while a peer waits for a message from a connected
 peer that has been silent as long as the "not answering" warning takes, it sends that peer a small
 request (phase ``resend``, the wanted phase's name as its one array) each time it warns. Every peer
-keeps the messages it sent over the last ``KEEP_STEPS`` steps and, on its next send or wait, sends
-the asked one again, the same bytes, at most ``MAX_RESENDS`` times each. A request for a message not
+keeps the messages it sent in its current step and the ``KEEP_STEPS`` before and, on its next send
+or wait, sends the asked one again, the same bytes, at most ``MAX_RESENDS`` times each. A request for a message not
 sent yet is ignored (a slow peer sends it anyway); the receiver takes the first copy and ignores the
 others without counting them as drops. Both sides count what they did (``resends``, summary.json).
 Zenoh's links are reliable, so this is a guard, not the transport: a run once hung here with each of
@@ -107,7 +107,7 @@ class ZenohEndpoint(CountsDrops):
         self._usual_wait = {}     # rank -> moving average of the waits that ended with a message from it
         self._closing = False
         self.bytes_sent = {}      # phase -> bytes on the wire (headers included)
-        self._sent = {}           # (dest, step, phase) -> the payload sent, over the last KEEP_STEPS steps
+        self._sent = {}           # (dest, step, phase) -> the payload sent, this step and KEEP_STEPS before
         self._sent_step = -1      # the latest step this peer sent a message of
         self._requests = []       # (requester, step, phase) asked for again, not served yet
         self._served = {}         # (requester, step, phase) -> copies sent again
