@@ -49,11 +49,13 @@ class Endpoint(Transport, Protocol):
         transport (the arrays may be reused). May block while the link is congested; raises
         ``RuntimeError`` if the in-process endpoint already holds an unreceived message under ``tag``."""
 
-    def recv(self, source: int, tag: tuple, check: Callable[[dict], None] | None = None):
+    def recv(self, source: int, tag: tuple, check: Callable[[dict], None] | None = None, patient: bool = False):
         """Generator returning the first message ``tag`` from ``source`` for which ``check(arrays)``
         does not raise ``sphcore.halo.Reject`` (rejected ones are dropped and counted in ``drops``).
         Yields (in-process) or blocks (between processes) until it arrives; raises ``PeerLost`` when
-        a peer of the run has gone and ``PeerTimeout`` after the endpoint's timeout."""
+        a peer of the run has gone and ``PeerTimeout`` after the endpoint's timeout. ``patient``: a
+        long wait is expected (a held run waits for rank 0): no warning that the source is not
+        answering (it is still asked to send the message again, quietly)."""
 
     @property
     def drops(self) -> dict:

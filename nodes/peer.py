@@ -273,7 +273,7 @@ class Controls:
         else:
             while True:
                 try:
-                    msg = yield from self.endpoint.recv(0, (step, f"hold{index}"), self._hold_check)
+                    msg = yield from self.endpoint.recv(0, (step, f"hold{index}"), self._hold_check, patient=True)
                 except PeerTimeout:
                     continue  # paused as long as rank 0 says; a lost peer still raises PeerLost
                 index += 1

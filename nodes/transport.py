@@ -247,9 +247,10 @@ class InProcessEndpoint(CountsDrops):
     def _count(self, phase: str, arrays: dict):
         self.bytes_sent[phase] = self.bytes_sent.get(phase, 0) + sum(int(a.nbytes) for a in arrays.values())
 
-    def recv(self, source: int, tag: tuple, check=None):
+    def recv(self, source: int, tag: tuple, check=None, patient: bool = False):
         """Generator: yields until a message ``tag`` from ``source`` to this peer has arrived that
-        passes ``check``; the ones that do not are dropped and counted."""
+        passes ``check``; the ones that do not are dropped and counted (``patient``: nothing to say
+        while waiting in memory)."""
         key = (self.rank, source, tag)
         while True:
             candidates = self.network._mail.get(key)

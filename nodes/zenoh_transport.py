@@ -336,20 +336,21 @@ class ZenohEndpoint(CountsDrops):
             self._frame_publisher().put(payload)
         self.bytes_sent["frames"] = self.bytes_sent.get("frames", 0) + len(payload)
 
-    def recv(self, source: int, tag: tuple, check=None):
+    def recv(self, source: int, tag: tuple, check=None, patient: bool = False):
         """Generator with the in-process interface; it blocks instead of yielding."""
-        return self.wait(source, tag, check)
+        return self.wait(source, tag, check, patient)
         yield  # pragma: no cover
 
-    def wait(self, source: int, tag: tuple, check=None) -> dict:
+    def wait(self, source: int, tag: tuple, check=None, patient: bool = False) -> dict:
         """The first message ``tag`` from ``source`` that ``check`` (if given) does not reject;
         rejected ones are dropped and counted. Raises PeerLost when a peer leaves, PeerTimeout after
-        ``timeout`` seconds; warns while the source is connected but silent."""
+        ``timeout`` seconds; warns while the source is connected but silent (unless ``patient``: a
+        held run) and asks it to send the message again."""
         step, phase = tag
         key = (source, step, phase)
         t0 = time.monotonic()
         while True:
-            arrays = self._next_candidate(key, t0)
+            arrays = self._next_candidate(key, t0, patient)
             try:
                 if check is not None:
                     check(arrays)
@@ -363,7 +364,7 @@ class ZenohEndpoint(CountsDrops):
             self.wait_s[phase] = self.wait_s.get(phase, 0.0) + waited
             return arrays
 
-    def _next_candidate(self, key, t0):
+    def _next_candidate(self, key, t0, patient=False):
         """Block until a message is filed under ``key`` (or the wait is over) and take it."""
         source, step, phase = key
         deadline = t0 + self.timeout
@@ -383,10 +384,12 @@ class ZenohEndpoint(CountsDrops):
                 now = time.monotonic()
                 quiet = now - max(t0, self._heard.get(source, t0))
                 if quiet >= warn_at and source in self._alive:
-                    log.warning("peer %d, step %d: peer %d not answering for %.1f s (still connected); waiting for "
-                                "its %r message, asked it to send that again", self.rank, step, source, quiet, phase)
+                    if not patient:  # a held run waits for rank 0 as long as it is held: nothing to report
+                        log.warning("peer %d, step %d: peer %d not answering for %.1f s (still connected); waiting "
+                                    "for its %r message, asked it to send that again", self.rank, step, source, quiet,
+                                    phase)
                     warn_at *= 2
-                    ask = True
+                    ask = True  # (a held run's message can be lost too)
                 left = deadline - now
                 if left <= 0:
                     state = (f"peer {source} not answering for {quiet:.1f} s (still connected: its process is busy, "

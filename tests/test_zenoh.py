@@ -473,3 +473,16 @@ def test_requests_to_send_again_are_checked_and_bounded(pair):
     assert _until(lambda: b.drops.get("0", {}).get("duplicate", 0) == 3), b.drops
     with pytest.raises(ValueError, match="resend"):
         a.send(1, (7, "resend"), {})
+
+
+def test_a_patient_wait_says_nothing_but_still_asks_again(pair, caplog):
+    a, b, _ = pair
+    a.timeout, a.not_answering_s = 1.5, 0.3
+    # Given a peer held by rank 0 (a patient wait: the run is paused as long as rank 0 says)
+    with caplog.at_level(logging.WARNING, logger="sph.zenoh"):
+        with pytest.raises(PeerTimeout):
+            a.wait(1, (4, "hold0"), patient=True)
+    # Then it never reported the source as not answering, yet asked it for the message again
+    assert not [r for r in caplog.records if "not answering" in r.getMessage()]
+    assert a.resends["asked"]["1"] >= 2
+    assert _until(lambda: len(b._requests) >= 2) and b._requests[0] == (0, 4, "hold0")
