@@ -7,7 +7,7 @@ several alpha, c0 and spacings, and plots the late front speed dZ/dT (T = 5.7-8.
 
     .venv/bin/python scripts/investigations/dam_break_viscosity.py [--out docs/img/validation/dam_break_viscosity.png]
 
-About 15 minutes on 2 cores (the two a/80 runs take 7 of them).
+About 9 minutes on 2 cores (the two a/80 runs take most of it).
 """
 import argparse
 import sys
