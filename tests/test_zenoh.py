@@ -431,6 +431,8 @@ def test_a_lost_message_is_asked_for_again_and_taken_once(pair, caplog):
     assert b.resends == {"asked": {"0": 1}, "sent": {}} and a.resends["sent"] == {"1": 1}
     said = [r.getMessage() for r in caplog.records]
     assert "peer 0: peer 1 asked again for our 'fields' message of step 5; sending it again (1 of 3)" in said
+    assert any(m.startswith("peer 1, step 5: peer 0's 'fields' message came after 0.") and
+               m.endswith("and 1 request to send it again") for m in said), said
     # (peer 0's own request for peer 1's answer, not sent yet when it asked, was ignored: nothing dropped)
     assert a.drops == {} and b.drops == {}
     # And a copy that comes later (a request still on its way) is not a drop for the peer that asked
