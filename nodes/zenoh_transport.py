@@ -361,7 +361,7 @@ class ZenohEndpoint(CountsDrops):
                 self._mail.delivered(key)
                 asked = self._asked.get(key, 0)
             waited = time.monotonic() - t0
-            if asked and not patient:  # lost and sent again, or only late: the sender's log says which
+            if asked and not patient:  # lost and sent again, or not sent yet: the sender's log says which
                 log.warning("peer %d, step %d: peer %d's %r message came after %.1f s and %d request%s to send it "
                             "again", self.rank, step, source, phase, waited, asked, "s" * (asked != 1))
             self._usual_wait[source] = 0.9 * self._usual_wait.get(source, 0.0) + 0.1 * waited
