@@ -31,14 +31,14 @@ def reference(tmp_path_factory):
     return np.load(out / "final.npz")
 
 
-def hosts_run(net, tmp_path, *extra, timeout="60"):
+def hosts_run(net, tmp_path, *extra, timeout="60", env=None):
     """`sph run --hosts` over the test hosts; returns the launcher process (stderr piped)."""
     cmd = [sys.executable, "-m", "launch.cli", "run", DAM, *SMALL, "--hosts", str(net.hosts_file(tmp_path, PORT)),
            "--ssh", net.ssh_command(tmp_path), "--remote-python", sys.executable, "--remote-dir", str(ROOT),
            "--out", str(tmp_path / "out"), "--timeout", timeout, *extra]
     if net.listen_host:
         cmd += ["--listen-host", net.listen_host]
-    return subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
 
 
 def test_three_hosts_over_tls_with_delay_and_loss_give_one_process_bits(tmp_path, reference):
@@ -55,6 +55,28 @@ def test_three_hosts_over_tls_with_delay_and_loss_give_one_process_bits(tmp_path
     for key in ("id", "x", "v", "rho"):
         assert np.array_equal(got[key], reference[key]), key
     assert (tmp_path / "out" / "tls" / "peer-2.key").exists()  # the credentials stayed on the launcher's side
+
+
+def test_a_message_lost_between_hosts_is_sent_again_and_the_bits_hold(tmp_path, reference):
+    from test_peers import LOSE_ONE_MESSAGE
+    # Given three hosts over TLS, 2 ms apart, and peer 0 losing its 'fields' message of step 30 to peer 1
+    # (the ssh stand-in passes the environment on, so each host's peer loads the test's sitecustomize.py)
+    (tmp_path / "inject").mkdir()
+    (tmp_path / "inject" / "sitecustomize.py").write_text(LOSE_ONE_MESSAGE.format(phase="fields", step=30))
+    env = dict(os.environ, PYTHONPATH=str(tmp_path / "inject"))
+    with netns.TestHosts(3, delay_ms=2) as net:
+        net.start_relays(PORT)
+        p = hosts_run(net, tmp_path, "--steps", "60", env=env)
+        out, err = p.communicate(timeout=300)
+        assert p.returncode == 0, err
+        assert netns.wait_gone(net, 5) == []
+    # Then peer 1 asked for it again, peer 0 sent it again, and the result is one process's bits
+    assert "peer 0: peer 1 asked again for our 'fields' message of step 30; sending it again (1 of 3)" in err, err
+    got = np.load(tmp_path / "out" / "final.npz")
+    for key in ("id", "x", "v", "rho"):
+        assert np.array_equal(got[key], reference[key]), key
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["resent_messages"] == 1 and summary["dropped_messages"] == 0
 
 
 def test_a_host_cut_off_mid_run_is_named_and_nothing_hangs(tmp_path):
