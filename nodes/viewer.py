@@ -72,6 +72,7 @@ from nodes.walls_view import (body_shifts, body_transform, floating_obstacles, m
 from nodes.zenoh_transport import zenoh_config
 from sphcore.output import write_summary
 from sphcore.render import LUT, RANK_COLOURS, Framelet, SceneRenderer, composite, draw_box
+from sphcore.scene import artificial_alpha
 
 log = logging.getLogger("sph.viewer")
 
@@ -105,8 +106,9 @@ def open_recording(run_id: str, record: Path | None = None, spawn: bool = False,
 
 def info_text(scene, particles: int, world: int, changes=()) -> str:
     s, t, f = scene.sph, scene.time, scene.forces
-    visc = {"artificial": f"artificial, alpha = {s.alpha:g}", "none": "none"}.get(s.viscosity,
-                                                                                 f"{s.viscosity}, nu = {s.nu:g} m²/s")
+    alpha = (f"alpha = {artificial_alpha(scene):.4g} (nu = {s.alpha_nu:g} m²/s)" if s.alpha_nu > 0
+             else f"alpha = {s.alpha:g}")
+    visc = {"artificial": f"artificial, {alpha}", "none": "none"}.get(s.viscosity, f"{s.viscosity}, nu = {s.nu:g} m²/s")
     lines = [
         f"# {scene.scene.name}", "", scene.scene.description, "",
         f"- particles: {particles:,}  ·  peers: {world}  ·  spacing: {scene.particles.spacing:g} m",

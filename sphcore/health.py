@@ -42,6 +42,7 @@ import logging
 import numpy as np
 
 from sphcore.physics import energy
+from sphcore.scene import artificial_alpha
 from sphcore.stages import ENERGY
 
 log = logging.getLogger("sph.health")
@@ -62,7 +63,7 @@ def _decade(count: int) -> bool:
 def _no_viscosity(scene) -> bool:
     """No dissipation in the momentum equation: no viscosity model, a zero coefficient."""
     sph = scene.sph
-    return (sph.viscosity == "none" or (sph.viscosity == "artificial" and sph.alpha == 0.0)
+    return (sph.viscosity == "none" or (sph.viscosity == "artificial" and artificial_alpha(scene) == 0.0)
             or (sph.viscosity in ("muller", "morris") and sph.nu == 0.0))
 
 

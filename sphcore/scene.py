@@ -168,6 +168,11 @@ class SPH:
     viscosity: str = spec("artificial", "viscosity model", choices=tuple(VISCOSITIES), control=COMPILED)
     alpha: float = spec(0.02, "artificial viscosity coefficient (viscosity = artificial)", range=(0.0, 10.0),
                         control=LIVE)
+    alpha_nu: float = spec(0.0, "the artificial viscosity given as the shear viscosity it acts with, nu = alpha c0 "
+                           "h / (2 (dim + 2)) in m^2/s (Monaghan 2005, h = support / 2), in place of alpha, which then "
+                           "follows the spacing so that the model's viscosity does not (a resolution study converges "
+                           "to one model; docs/VALIDATION.md, the dam break); 0 = use alpha",
+                           range=(0.0, 1.0e3), control=LIVE)
     nu: float = spec(1.0e-6, "kinematic viscosity (m^2/s) (viscosity = muller or morris)", range=(0.0, 1.0e3),
                      control=LIVE)
 
@@ -922,6 +927,20 @@ def mesh_path(scene: Scene, obstacle) -> Path:
 MESH_SUFFIXES = (".stl", ".obj", ".ply")
 
 
+ARTIFICIAL_ALPHA_MAX = 10.0  # sph.alpha's own bound
+
+
+def artificial_alpha(s) -> float:
+    """The artificial viscosity coefficient of scene ``s``: sph.alpha, or, where sph.alpha_nu > 0, the
+    alpha whose shear viscosity alpha c0 h / (2 (dim + 2)) is alpha_nu at this spacing (Monaghan 2005,
+    "Smoothed particle hydrodynamics", Rep. Prog. Phys. 68, 1703, sec. 4.1; h = support / 2, as in
+    physics/viscosity.py)."""
+    if s.sph.alpha_nu <= 0.0:
+        return s.sph.alpha
+    h = 0.5 * s.sph.support * s.particles.spacing
+    return 2.0 * (s.dim + 2) * s.sph.alpha_nu / (s.sph.sound_speed * h)
+
+
 def check_mesh_file(path: Path, key: str):
     """A mesh obstacle's file holds a closed-enough triangle mesh that PyVista reads; SceneError
     (one line) for an empty, truncated, corrupt or unknown file. VTK's own error printing is
@@ -1068,6 +1087,17 @@ def _check_combinations(s: Scene, files: bool = True, backend: str = "cpu") -> S
     if s.sph.solver == "dfsph" and s.time.integrator != "symplectic_euler":
         raise SceneError(f"time.integrator = {s.time.integrator!r}: sph.solver = 'dfsph' integrates with "
                          "'symplectic_euler' (its pressure solve predicts v* = v + dt a and then moves x by dt v*)")
+    if s.sph.alpha_nu > 0.0:
+        if s.sph.viscosity != "artificial":
+            raise SceneError(f"sph.alpha_nu = {s.sph.alpha_nu!r}: it sets the artificial viscosity, but sph.viscosity "
+                             f"= {s.sph.viscosity!r} (use sph.viscosity = 'artificial', or sph.nu for "
+                             f"{s.sph.viscosity!r})")
+        alpha = artificial_alpha(s)
+        if alpha > ARTIFICIAL_ALPHA_MAX:
+            raise SceneError(f"sph.alpha_nu = {s.sph.alpha_nu!r}: at sph.sound_speed = {s.sph.sound_speed!r} and a "
+                             f"support of {s.sph.support!r} spacings of {s.particles.spacing!r} m it needs alpha = "
+                             f"{alpha:.4g}, above {ARTIFICIAL_ALPHA_MAX:g} (lower it, or raise the spacing or the sound "
+                             "speed)")
     if s.sph.solver == "dfsph" and s.sph.density == "continuity":
         raise SceneError("sph.density = 'continuity': sph.solver = 'dfsph' solves for the summation density "
                          "(use sph.density = 'summation', or sph.solver = 'wcsph')")

@@ -180,7 +180,27 @@ BAD = [
     ("plane-normal-zero", 3, {"domain.planes": [{"point": [0, 0, 0], "normal": [0, 0, 0]}]},
      ["domain.planes[0].normal", "non-zero"]),
     ("no-fluid-blocks", 3, {"fluid.blocks": []}, ["fluid.blocks", "at least one"]),
+    ("alpha-nu-with-morris", 2, {"sph.viscosity": "morris", "sph.nu": 1e-6, "sph.alpha_nu": 1e-4},
+     ["sph.alpha_nu", "0.0001", "'morris'", "sph.nu"]),
+    ("alpha-nu-too-large", 2, {"sph.alpha_nu": 5.0}, ["sph.alpha_nu", "5.0", "alpha =", "above 10"]),
 ]
+
+
+def test_the_artificial_viscosity_given_as_a_viscosity_keeps_it_at_every_spacing():
+    from sphcore.model import Model
+    # Given the 2D dam break with its artificial viscosity given as nu = alpha c0 h / 8 (2D)
+    nus = []
+    for dx in (0.01, 0.005, 0.0025):
+        scene = scene_from_dict(with_keys(base(2), {"particles.spacing": dx, "sph.alpha_nu": 4.3125e-4,
+                                                    "sph.sound_speed": 30.0, "sph.support": 2.3}))
+        model = Model(scene, "f64", "cpu")
+        nus.append((model.prm.alpha, model.prm.alpha * 30.0 * model.h / 8.0))
+    # Then alpha halves with every halving of h, and the viscosity it acts with stays
+    assert [round(a, 12) for a, _ in nus] == [0.01, 0.02, 0.04]
+    assert all(nu == pytest.approx(4.3125e-4, rel=1e-12) for _, nu in nus)
+    # and without it, alpha is the scene's own
+    plain = Model(scene_from_dict(with_keys(base(2), {"sph.alpha": 0.03})), "f64", "cpu")
+    assert plain.prm.alpha == 0.03
 
 
 @pytest.mark.parametrize("dim,changes,fragments", [c[1:] for c in BAD], ids=[c[0] for c in BAD])
