@@ -112,6 +112,7 @@ CASES = {
     "sph.clamp_negative_pressure": ((), "sph.clamp_negative_pressure=false", True),
     "sph.background_pressure": (("sph.clamp_negative_pressure=false",), "sph.background_pressure=500.0", True),
     "sph.alpha": ((), "sph.alpha=0.2", True),
+    "sph.alpha_nu": ((), "sph.alpha_nu=0.01", True),
     "sph.nu": (("sph.viscosity=muller", "sph.nu=1e-5"), "sph.nu=1e-3", True),
     "terms.xsph": (TERMS, "terms.xsph=0.3", True),
     "terms.shifting": (TERMS, "terms.shifting=0.5", True),
