@@ -108,7 +108,8 @@ def info_text(scene, particles: int, world: int, changes=()) -> str:
     s, t, f = scene.sph, scene.time, scene.forces
     alpha = (f"alpha = {artificial_alpha(scene):.4g} (nu = {s.alpha_nu:g} m²/s)" if s.alpha_nu > 0
              else f"alpha = {s.alpha:g}")
-    visc = {"artificial": f"artificial, {alpha}", "none": "none"}.get(s.viscosity, f"{s.viscosity}, nu = {s.nu:g} m²/s")
+    visc = {"artificial": f"artificial, {alpha}", "none": "none"}.get(s.viscosity,
+                                                                      f"{s.viscosity}, nu = {s.nu:g} m²/s")
     lines = [
         f"# {scene.scene.name}", "", scene.scene.description, "",
         f"- particles: {particles:,}  ·  peers: {world}  ·  spacing: {scene.particles.spacing:g} m",

@@ -101,7 +101,8 @@ class Model:
         self.pair_gradients = stores_pair_gradients(scene, backend)
         self.prm = make_params(
             dtype, H=self.H, h=self.h, s_w=s_w, s_g=s_g, s_l=s_l, w0=w(int(self.kernel), 0.0, self.H, s_w),
-            rho0=rho0, c0=sph.sound_speed, clamp_negative=bool(sph.clamp_negative_pressure), alpha=artificial_alpha(scene),
+            rho0=rho0, c0=sph.sound_speed, clamp_negative=bool(sph.clamp_negative_pressure),
+            alpha=artificial_alpha(scene),
             mu=rho0 * self.nu, gravity=self.fluid_gravity(scene), external=scene.forces.external,
             central_omega2=scene.forces.central_omega ** 2, central=scene.forces.central_center,
             period=tuple(self.host_grid.period), xsph_eps=terms.xsph, shift_a=terms.shifting,

@@ -1096,8 +1096,8 @@ def _check_combinations(s: Scene, files: bool = True, backend: str = "cpu") -> S
         if alpha > ARTIFICIAL_ALPHA_MAX:
             raise SceneError(f"sph.alpha_nu = {s.sph.alpha_nu!r}: at sph.sound_speed = {s.sph.sound_speed!r} and a "
                              f"support of {s.sph.support!r} spacings of {s.particles.spacing!r} m it needs alpha = "
-                             f"{alpha:.4g}, above {ARTIFICIAL_ALPHA_MAX:g} (lower it, or raise the spacing or the sound "
-                             "speed)")
+                             f"{alpha:.4g}, above {ARTIFICIAL_ALPHA_MAX:g} (lower it, or raise the spacing or the "
+                             "sound speed)")
     if s.sph.solver == "dfsph" and s.sph.density == "continuity":
         raise SceneError("sph.density = 'continuity': sph.solver = 'dfsph' solves for the summation density "
                          "(use sph.density = 'summation', or sph.solver = 'wcsph')")
