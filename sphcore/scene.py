@@ -169,9 +169,9 @@ class SPH:
     alpha: float = spec(0.02, "artificial viscosity coefficient (viscosity = artificial)", range=(0.0, 10.0),
                         control=LIVE)
     alpha_nu: float = spec(0.0, "the artificial viscosity given as the shear viscosity it acts with, nu = alpha c0 "
-                           "h / (2 (dim + 2)) in m^2/s (Monaghan 2005; h = half the support radius), in place of alpha, which then "
-                           "follows the spacing so that the model's viscosity does not (a resolution study converges "
-                           "to one model; docs/VALIDATION.md, the dam break); 0 = use alpha",
+                           "h / (2 (dim + 2)) in m^2/s (Monaghan 2005; h = half the support radius), in place of "
+                           "alpha, which then follows the spacing so that the model's viscosity does not (a resolution "
+                           "study converges to one model; docs/VALIDATION.md, the dam break); 0 = use alpha",
                            range=(0.0, 1.0e3), control=LIVE)
     nu: float = spec(1.0e-6, "kinematic viscosity (m^2/s) (viscosity = muller or morris)", range=(0.0, 1.0e3),
                      control=LIVE)
