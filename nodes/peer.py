@@ -407,8 +407,7 @@ def _counts_ok(theirs, own) -> bool:
     numbers >= 0) under the same keys."""
     if own is None or theirs is None:
         return own is None and theirs is None
-    return (isinstance(theirs, dict) and set(theirs) == set(own)
-            and all(type(v) is int and 0 <= v < 2**62 for v in theirs.values()))
+    return _tallies_ok(theirs, 1) and set(theirs) == set(own)
 
 
 def _tallies_ok(value, depth: int) -> bool:

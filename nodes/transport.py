@@ -199,15 +199,13 @@ class CountsDrops:
     and sent again (``_asked_again``, ``_sent_again``: {rank: count}): the same views for every
     transport, so the peer's summary reads them alike."""
 
-    _asked_again: dict = {}
-    _sent_again: dict = {}
-
     @property
     def resends(self) -> dict:
         """{"asked": {source: n}, "sent": {dest: n}}: messages this peer asked a silent peer to send
-        again, and messages it sent again when asked (nodes/zenoh_transport.py; none in memory)."""
-        return {"asked": {str(k): v for k, v in sorted(self._asked_again.items())},
-                "sent": {str(k): v for k, v in sorted(self._sent_again.items())}}
+        again, and messages it sent again when asked (nodes/zenoh_transport.py; none in memory, whose
+        endpoints have neither tally)."""
+        return {"asked": {str(k): v for k, v in sorted(getattr(self, "_asked_again", {}).items())},
+                "sent": {str(k): v for k, v in sorted(getattr(self, "_sent_again", {}).items())}}
 
     @property
     def drops(self) -> dict:

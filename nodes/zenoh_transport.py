@@ -183,6 +183,8 @@ class ZenohEndpoint(CountsDrops):
         """Send again what peers asked for (the step loop's thread, never the lock holder): a message
         this peer keeps is sent as it was, at most MAX_RESENDS times; one older than what it keeps, or
         further ahead than a peer of this run can be, is a drop; one not sent yet is left to come."""
+        if not self._requests:  # the usual case, every send and wait: no lock (a request filed meanwhile waits
+            return              # for the next call)
         with self._cv:
             requests, self._requests = self._requests, []
             now = max(self._sent_step, -1 if self._mail.step is None else self._mail.step)
