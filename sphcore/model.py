@@ -55,7 +55,7 @@ class Model:
     gradient_moment (boundaries.lattice_gradient_moment); walls; mass (kg per particle); host_grid,
     grid_lo (float64 origin), lo (origin in the run's dtype), periodic (0/1); nu (m^2/s, 0 without a
     physical viscosity); prm (params.Params); the flags dfsph, pair_gradients (DFSPH reads stored
-    m_j grad W_ij), continuity, use_xsph, use_shifting, use_drift, use_vorticity, use_diffusion, use_damping;
+    m_j grad W_ij), continuity, use_xsph, use_shifting, use_drift, use_vorticity, use_balsara, use_diffusion, use_damping;
     force_terms ((stage, scene value) of stages.FORCE_TERMS that are on); extra_names (the arrays carried
     in state.extra)."""
 
@@ -120,6 +120,7 @@ class Model:
         self.force_terms = tuple((term, scene_value(scene, term.key)) for term in st.FORCE_TERMS
                                  if scene_value(scene, term.key) > 0.0)
         self.use_vorticity = terms.vorticity_confinement > 0.0
+        self.use_balsara = sph.viscosity_switch == "balsara"  # the balsara stage and its factor in the forces
         self.use_damping = bool(scene.damping_zones)
         self.continuity = sph.density == "continuity"
         self.use_diffusion = self.continuity and sph.delta > 0.0
@@ -130,6 +131,7 @@ class Model:
                             + (("x_ref",) if list_skin(scene, backend) else ()))
         # the compile-time choices of this model's stages (stages.CHOICES); ``divergence`` is per call
         self.choices = {"kernel": int(self.kernel), "eos": int(self.eos), "viscosity": int(self.viscosity),
+                        "viscosity_switch": int(self.use_balsara),
                         "pressure_gradient": int(self.pressure_gradient),
                         "integrator": int(self.integrator), "periodic": self.periodic,
                         "neighbours": NEIGHBOURS[self.neighbours],

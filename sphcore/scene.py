@@ -173,6 +173,11 @@ class SPH:
                            "alpha, which then follows the spacing so that the model's viscosity does not (a resolution "
                            "study converges to one model; docs/VALIDATION.md, the dam break); 0 = use alpha",
                            range=(0.0, 1.0e3), control=LIVE)
+    viscosity_switch: str = spec("none", "balsara: each pair's artificial viscosity scaled by Balsara's switch "
+                                 "(f_i + f_j) / 2, f = |div v| / (|div v| + |curl v| + 1e-4 c0 / h): kept where the "
+                                 "flow compresses, taken out where it shears (Balsara 1995; physics/balsara.py); "
+                                 "one more neighbour pass a step; viscosity = artificial only",
+                                 choices=("none", "balsara"), control=COMPILED)
     nu: float = spec(1.0e-6, "kinematic viscosity (m^2/s) (viscosity = muller or morris)", range=(0.0, 1.0e3),
                      control=LIVE)
 
@@ -1087,6 +1092,10 @@ def _check_combinations(s: Scene, files: bool = True, backend: str = "cpu") -> S
     if s.sph.solver == "dfsph" and s.time.integrator != "symplectic_euler":
         raise SceneError(f"time.integrator = {s.time.integrator!r}: sph.solver = 'dfsph' integrates with "
                          "'symplectic_euler' (its pressure solve predicts v* = v + dt a and then moves x by dt v*)")
+    if s.sph.viscosity_switch != "none" and s.sph.viscosity != "artificial":
+        raise SceneError(f"sph.viscosity_switch = {s.sph.viscosity_switch!r}: it scales the artificial viscosity, but "
+                         f"sph.viscosity = {s.sph.viscosity!r} (use sph.viscosity = 'artificial', or "
+                         "sph.viscosity_switch = 'none')")
     if s.sph.alpha_nu > 0.0:
         if s.sph.viscosity != "artificial":
             raise SceneError(f"sph.alpha_nu = {s.sph.alpha_nu!r}: it sets the artificial viscosity, but sph.viscosity "

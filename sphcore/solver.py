@@ -38,7 +38,8 @@ LIVE_MODEL = ("scene", "prm", "nu", "mass", "force_terms")
 MODEL_PARTS = {
     "choices": "a compile-time choice", "kernel": "the kernel", "eos": "the EOS", "viscosity": "the viscosity model",
     "integrator": "the integrator", "use_xsph": "the XSPH stage", "use_shifting": "the shifting stage",
-    "use_drift": "the drift", "use_vorticity": "the vorticity stages", "use_diffusion": "the delta-SPH stage",
+    "use_drift": "the drift", "use_vorticity": "the vorticity stages",
+    "use_balsara": "Balsara's switch", "use_diffusion": "the delta-SPH stage",
     "use_damping": "the damping stage", "continuity": "the density scheme", "dfsph": "the solver",
     "extra_names": "the carried arrays",
     "force_terms": "the force-term stages", "walls": "the walls", "host_grid": "the grid", "grid_lo": "the grid",
@@ -512,7 +513,11 @@ class Simulation:
             self._run(st.OUTLET_PRESSURE, prm=prm)                 # outlets: rho = rho0, p = p_out
         self.max_neighbours = max(self.max_neighbours, self.neighbours_max)
         yield from self.solver.fields(halo, prm)                   # DFSPH: 1/D, g^wall, p = 0; rho_ref
-        halo.send_ghosts(self, "fields", ("rho", "p"))             # ghosts' rho, p   (exchange 2): received
+        fields = ("rho", "p")
+        if self.use_balsara:
+            self._run(st.BALSARA, prm=prm)                         # x, v, m, rho     -> Balsara's f
+            fields += ("balsara",)
+        halo.send_ghosts(self, "fields", fields)                   # ghosts' rho, p (f) (exchange 2): received
                                                                    # by the accelerations, or DFSPH's solve
 
     def _accelerations(self, halo, prm):

@@ -27,6 +27,7 @@ from types import MappingProxyType
 
 from sphcore.choices import EOS, Integrator, Kernel, PressureGradient, Viscosity
 from sphcore.grid import CELL_WALK, NEIGHBOUR_LISTS
+from sphcore.physics.balsara import balsara_row
 from sphcore.physics.damping import damping_row
 from sphcore.physics.continuity import density_update_row, diffusion_row
 from sphcore.physics.density import density_row
@@ -50,6 +51,8 @@ CHOICES = MappingProxyType({
     "kernel": (tuple(int(k) for k in Kernel), int(Kernel.WENDLAND_C2), "smoothing kernel family (choices.Kernel)"),
     "eos": (tuple(int(e) for e in EOS), int(EOS.TAIT), "equation of state (choices.EOS)"),
     "viscosity": (tuple(int(v) for v in Viscosity), int(Viscosity.ARTIFICIAL), "viscosity model (choices.Viscosity)"),
+    "viscosity_switch": ((0, 1), 0, "1: Balsara's switch scales each pair's artificial viscosity by (f_i + f_j) / 2 "
+                                    "(physics/balsara.py, sph.viscosity_switch)"),
     "pressure_gradient": (tuple(int(g) for g in PressureGradient), int(PressureGradient.SYMMETRIC),
                           "the forces pass's pressure gradient (choices.PressureGradient, physics/pressure.py)"),
     "integrator": (tuple(int(g) for g in Integrator), int(Integrator.SYMPLECTIC_EULER), "time integrator"),
@@ -134,6 +137,7 @@ class Scratch:
 SCRATCH = (
     Scratch("fill", 1, "", 1.0, "wall fill fraction theta of the density stage (physics/walls.py)"),
     Scratch("dv", 3, "use_drift", 0.0, "drift correction dv (m/s): XSPH and shifting (x += dt (v + dv))"),
+    Scratch("balsara", 1, "use_balsara", 1.0, "Balsara's switch f_i of the artificial viscosity (physics/balsara.py)"),
     Scratch("omega", 3, "use_vorticity", 0.0, "vorticity (1/s; physics/vorticity.py)"),
     Scratch("drho", 1, "continuity", 0.0, "delta-SPH density diffusion D rho / Dt (kg/m^3/s; continuity.py)"),
     Scratch("wgrad", 3, "dfsph", 0.0, "DFSPH wall gradient g^wall (kg/m^4; physics/dfsph.py)"),
@@ -227,6 +231,7 @@ DENSITY = Stage("density", density_row, writes=("rho_c", "rho", "p", "fill", "gr
                 reduce=("sum", "imax")).check()  # returns i's neighbour count: their sum and maximum
 DFSPH_FACTOR = Stage("dfsph_factor", dfsph_factor_row, writes=("p", "wgrad", "inv_d", "lam_sum"),
                      reduce=("sum",)).check()  # returns rho_i / rho0 - 1 quantised: the mean density
+BALSARA = Stage("balsara", balsara_row, writes=("balsara",)).check()
 FORCES = Stage("forces", acceleration_row, writes=("a",)).check()
 DIFFUSION = Stage("diffusion", diffusion_row, writes=("drho",)).check()
 SURFACE_TENSION = Stage("surface_tension", surface_tension_row, writes=("a",),
@@ -279,7 +284,7 @@ def overlap_group(*group: Stage) -> tuple:
 # What runs while exchange 2 (the ghosts' rho, p) travels: the accelerations the scene enables, in order
 ACCELERATIONS = overlap_group(FORCES, DIFFUSION, *FORCE_TERMS)
 
-STAGES = (DENSITY, OUTLET_PRESSURE, DFSPH_FACTOR, FORCES, DIFFUSION, *FORCE_TERMS, VORTICITY, CONFINEMENT, DAMPING, XSPH, SHIFTING,
+STAGES = (DENSITY, OUTLET_PRESSURE, DFSPH_FACTOR, BALSARA, FORCES, DIFFUSION, *FORCE_TERMS, VORTICITY, CONFINEMENT, DAMPING, XSPH, SHIFTING,
           OPEN_BOUNDARY, STATISTICS, DFSPH_KICK, DFSPH_WARM_GHOSTS, DFSPH_SOURCE, DFSPH_UPDATE, DFSPH_FINISH, DENSITY_UPDATE, INTEGRATE, BOUNDARIES,
           BODY_REACTION, ENERGY)
 

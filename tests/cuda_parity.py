@@ -187,8 +187,9 @@ CASES = {
     "obstacle_f64": lambda: steps_case(scene("obstacle.toml", "particles.spacing=0.05", "sph.eos='linear'",
                                              "sph.viscosity='muller'", "sph.nu=1e-4", "sph.kernel='muller'"),
                                        "f64", 2),
-    "peers_f64": lambda: peers_case(tiny(), "f64", 2),
-    "continuity_f64": lambda: steps_case(tiny("sph.density='continuity'"), "f64", 3),
+    "peers_f64": lambda: peers_case(tiny("sph.viscosity_switch='balsara'"), "f64", 2),  # f with exchange 2
+    # with Balsara's switch on the artificial viscosity (its pass, and its factor in the forces)
+    "continuity_f64": lambda: steps_case(tiny("sph.density='continuity'", "sph.viscosity_switch='balsara'"), "f64", 3),
     "dfsph_f64": lambda: steps_case(tiny("sph.solver='dfsph'", "time.dt=0.002"), "f64", 3),
     "dfsph_peers_f64": lambda: peers_case(tiny("sph.solver='dfsph'", "time.dt=0.002"), "f64", 2),
     # the same in 2D (200 particles, ~20 neighbours each): 74 s in the simulator on one core of the
@@ -198,7 +199,7 @@ CASES = {
     # the cell walk (run.neighbours = "walk"): every neighbour pass walks the cells on the device
     "walk_terms_f64": lambda: steps_case(tiny("run.neighbours='walk'", "terms.xsph=0.3",
                                                "terms.surface_tension=0.05", "terms.vorticity_confinement=0.01",
-                                               "sph.density='continuity'"), "f64", 2),
+                                               "sph.density='continuity'", "sph.viscosity_switch='balsara'"), "f64", 2),
     # moving walls (motion.py): a sliding plate with the Morris no-slip wall, oscillating across the
     # channel so that the wall's velocity and acceleration both enter (viscous drag, pressure, collision),
     # and the turbulent wall friction's law of the wall on the slip relative to each plate

@@ -140,9 +140,10 @@ def test_a_walking_run_counts_the_neighbours_the_lists_hold():
 
 @pytest.mark.parametrize("solver", ["wcsph", "dfsph"])
 def test_walking_peers_equal_one_walking_process_bitwise(solver):
-    # Given the dam break with the cell walk, XSPH, vorticity confinement and surface tension (WCSPH)
-    # or the DFSPH solver (its factor, source and update passes walk too)
-    extra = (["terms.vorticity_confinement=0.05", "terms.xsph=0.3", "terms.surface_tension=0.02"]
+    # Given the dam break with the cell walk, XSPH, vorticity confinement, surface tension and Balsara's
+    # switch (WCSPH) or the DFSPH solver (its factor, source and update passes walk too)
+    extra = (["terms.vorticity_confinement=0.05", "terms.xsph=0.3", "terms.surface_tension=0.02",
+              "sph.viscosity_switch='balsara'"]
              if solver == "wcsph" else ["sph.solver='dfsph'", "time.dt=0.004"])
     sc = scene("dam_break", "particles.spacing=0.05", "run.neighbours='walk'", *extra)
     steps = 40

@@ -59,9 +59,10 @@ def test_the_balancer_moved_cuts_in_the_runs_above():
 
 @pytest.mark.fast
 def test_optional_terms_across_peers_equal_one_peer_bitwise():
-    # Given vorticity confinement (needs the ghosts' omega: a third exchange), XSPH and surface tension
+    # Given vorticity confinement (needs the ghosts' omega: a third exchange), XSPH, surface tension and
+    # Balsara's switch (needs the ghosts' f: it travels with exchange 2)
     sc = scene("dam_break", "particles.spacing=0.05", "terms.vorticity_confinement=0.05", "terms.xsph=0.3",
-               "terms.surface_tension=0.02")
+               "terms.surface_tension=0.02", "sph.viscosity_switch='balsara'")
     reference = run_single(sc, 60)
     cluster = InProcessCluster(sc, 2, "f64", dims=(2, 1, 1))
     for _ in range(60):

@@ -183,6 +183,8 @@ BAD = [
     ("alpha-nu-with-morris", 2, {"sph.viscosity": "morris", "sph.nu": 1e-6, "sph.alpha_nu": 1e-4},
      ["sph.alpha_nu", "0.0001", "'morris'", "sph.nu"]),
     ("alpha-nu-too-large", 2, {"sph.alpha_nu": 5.0}, ["sph.alpha_nu", "5.0", "alpha =", "above 10"]),
+    ("switch-with-morris", 3, {"sph.viscosity": "morris", "sph.nu": 1e-6, "sph.viscosity_switch": "balsara"},
+     ["sph.viscosity_switch", "'balsara'", "'morris'", "'artificial'"]),
 ]
 
 

@@ -2,13 +2,15 @@
 
 The pair terms and their papers are in pressure.py (the symmetric pressure gradient, Monaghan 1992,
 or the difference form with the symmetric one in the free surface's layer),
-viscosity.py (artificial, Muller, Morris), external.py (body forces) and walls.py (the analytic
-wall's pressure and no-slip drag); this file sums them over i's neighbours."""
+viscosity.py (artificial, Muller, Morris; Balsara's switch in balsara.py), external.py (body
+forces) and walls.py (the analytic wall's pressure and no-slip drag); this file sums them over i's
+neighbours."""
 
 import math
 
 from numba import njit
 
+from sphcore.physics.balsara import pair_factor
 from sphcore.physics.external import body_acceleration_at
 from sphcore.physics.kernels import lap_w_viscosity, pair_dw_dr_over_r, w
 from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
@@ -19,10 +21,12 @@ from sphcore.physics.walls import near_wall, wall_difference_terms, wall_terms, 
 
 
 @njit(cache=True, inline="always")
-def acceleration_row(kernel, viscosity, pressure_gradient, periodic, neighbours, prm, i, x, v, m, rho, p, nbr, counts, cells, cell_begin,
-                     cell_end, wall_kind, wall_data, wall_tables, wall_motion, wall_near, fill, a):
+def acceleration_row(kernel, viscosity, viscosity_switch, pressure_gradient, periodic, neighbours, prm, i, x, v, m, rho, p,
+                     nbr, counts, cells, cell_begin, cell_end, wall_kind, wall_data, wall_tables, wall_motion, wall_near,
+                     fill, balsara, a):
     """a_i = pressure + viscosity + body force + wall pressure.   (pressure.py, viscosity.py,
-    external.py, walls.py; moving walls: motion.py)
+    external.py, walls.py; moving walls: motion.py; with ``viscosity_switch`` each pair's artificial
+    viscosity scaled by Balsara's switch: balsara.py)
 
     With the difference form (pressure_gradient 1) the pass also sums the concentration C_i, the
     symmetric form's zeroth-order part z_i = symmetric - difference and the gradient moment B_i (the
@@ -85,7 +89,8 @@ def acceleration_row(kernel, viscosity, pressure_gradient, periodic, neighbours,
                 f = like(dw_over_r, 0.0)
             if viscosity == 1:  # Viscosity.ARTIFICIAL
                 vdotx = ((v[i, 0] - v[j, 0]) * dx + (v[i, 1] - v[j, 1]) * dy + (v[i, 2] - v[j, 2]) * dz)
-                f += artificial_pair(m[j], vdotx, r2, rho_i, rho[j], dw_over_r, prm.alpha, prm.c0, prm.h)
+                f += (pair_factor(viscosity_switch, balsara[i], balsara[j])  # Balsara's switch (balsara.py)
+                      * artificial_pair(m[j], vdotx, r2, rho_i, rho[j], dw_over_r, prm.alpha, prm.c0, prm.h))
             ax += f * dx
             ay += f * dy
             az += f * dz
