@@ -23,6 +23,7 @@ from numba import njit
 from sphcore.physics.kernels import pair_dw_dr_over_r
 from sphcore.physics.pairs import candidate, span_rows, spans, walk_start
 from sphcore.physics.real import like
+from sphcore.physics.vorticity import curl_pair
 
 REST = 1.0e-4  # Balsara's floor, in units of c0 / h
 
@@ -57,15 +58,13 @@ def balsara_row(kernel, periodic, neighbours, prm, i, x, v, m, rho, nbr, counts,
             if not inside:
                 continue
             g = m[j] * pair_dw_dr_over_r(kernel, r2, math.sqrt(r2), prm.H, prm.s_g)  # 0 for coincident rows
-            gx = g * dx
-            gy = g * dy
-            gz = g * dz
             vx = v[j, 0] - v[i, 0]
             vy = v[j, 1] - v[i, 1]
             vz = v[j, 2] - v[i, 2]
-            dv += vx * gx + vy * gy + vz * gz
-            ox += gy * vz - gz * vy
-            oy += gz * vx - gx * vz
-            oz += gx * vy - gy * vx
+            dv += g * (vx * dx + vy * dy + vz * dz)
+            cx, cy, cz = curl_pair(g, vx, vy, vz, dx, dy, dz)  # m_j grad_i W_ij x v_ji (vorticity.py)
+            ox += cx
+            oy += cy
+            oz += cz
     inv_rho = like(prm.H, 1.0) / rho[i]
     balsara[i] = switch(dv * inv_rho, math.sqrt(ox * ox + oy * oy + oz * oz) * inv_rho, prm.c0, prm.h)
