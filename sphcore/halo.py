@@ -100,6 +100,10 @@ def has_repeats(ids: np.ndarray) -> bool:
     return bool((s[1:] == s[:-1]).any())
 
 
+# Ghost arrays of exchange 2 and later whose values a row's physics bounds: name -> (low, high, why).
+# A value outside is dropped as "range" (a negative f would make the artificial viscosity put energy in).
+GHOST_RANGES = {"balsara": (0.0, 1.0, "Balsara's switch f, physics/balsara.py")}
+
 POSITIONS = "positions"  # exchange 1b's phase: the ghost rows' id, x, v, m (and carried extras)
 MOVED = "moved"          # exchange 1 of a step that reuses its lists (run.neighbour_skin): the same ghost
                          # rows' x, v, m (and the carried extras but the reference positions), no migrants
@@ -256,12 +260,17 @@ class PeerHalo:
 
     def _ghost_rows_check(self, q, phase, layout, lo, hi):
         """Check of exchange 2 and later from peer ``q``: exactly the arrays sent, one row per ghost
-        that ``q`` sent in exchange 1, in the run's dtype, finite (``layout``: name -> (the shape of
-        a row, dtype))."""
+        that ``q`` sent in exchange 1, in the run's dtype, finite, within GHOST_RANGES (``layout``:
+        name -> (the shape of a row, dtype))."""
         expected = {k: ((hi - lo,) + tuple(shape), dtype) for k, (shape, dtype) in layout.items()}
+        bounded = [(k, GHOST_RANGES[k]) for k in layout if k in GHOST_RANGES]
 
         def check(msg):
             expect_arrays(msg, expected, f"{phase} from peer {q}")
+            for name, (low, high, meaning) in bounded:
+                a = msg[name]
+                if not ((a >= low) & (a <= high)).all():
+                    raise Reject("range", f"{phase} from peer {q}: {name} outside [{low:g}, {high:g}] ({meaning})")
 
         return check
 

@@ -116,3 +116,35 @@ def test_the_switch_needs_the_artificial_viscosity(viscosity):
     with pytest.raises(SceneError) as err:
         block_scene(switch="monaghan")
     assert "viscosity_switch" in str(err.value) and "balsara" in str(err.value)
+
+
+def test_peers_drop_a_ghost_f_outside_zero_to_one_and_stay_bitwise_equal():
+    from conftest import scene
+    from nodes.cluster import InProcessCluster
+    # Given two in-process clusters with the switch, in one of which every peer sends, in steps 3 to
+    # 5, a forged exchange 2 ahead of its genuine one: the right arrays and rows, finite, but an f
+    # outside [0, 1] (a negative f would make the artificial viscosity push energy in)
+    sc = scene("dam_break_2d", "particles.spacing=0.01", "sph.viscosity_switch='balsara'")
+    calm = InProcessCluster(sc, 2, "f64", dims=(2, 1, 1))
+    hit = InProcessCluster(sc, 2, "f64", dims=(2, 1, 1))
+
+    def forging(rank, send, f):
+        def send_first_a_forgery(dest, tag, arrays):
+            step, phase = tag
+            if phase == "fields" and 3 <= step <= 5:
+                hit.network.deliver(dest, rank, tag, dict(arrays, balsara=np.full_like(arrays["balsara"], f)))
+            send(dest, tag, arrays)
+        return send_first_a_forgery
+
+    for rank, (halo, f) in enumerate(zip(hit.halos, (-0.5, 2.0))):
+        halo.transport.send = forging(rank, halo.transport.send, f)
+    for _ in range(8):
+        calm.step()
+        hit.step()
+    # Then each forgery was dropped for its range, and the result did not change
+    for rank, halo in enumerate(hit.halos):
+        assert halo.transport.drops == {str(1 - rank): {"range": 3}}, (rank, halo.transport.drops)
+    assert all(h.transport.dropped == 0 for h in calm.halos)
+    a, b = calm.final_arrays(), hit.final_arrays()
+    for key in ("id", "x", "v", "rho"):
+        assert np.array_equal(a[key], b[key]), key

@@ -161,7 +161,7 @@ print(json.dumps({name: {"ok": ".target sm_90" in text and ".entry" in text,
 """
 # float64 instructions a float32 kernel may hold, each with the reason (tests/ptx_f64_in_f32.json)
 F64_ALLOWED = json.loads((ROOT / "tests" / "ptx_f64_in_f32.json").read_text())
-FORCES_DEFAULT = "forces kernel=2 viscosity=1 pressure_gradient=0 periodic=0 neighbours=0"
+FORCES_DEFAULT = "forces kernel=2 viscosity=1 viscosity_switch=0 pressure_gradient=0 periodic=0 neighbours=0"
 
 
 def _compile_ptx(precision: str, probe_f64: bool = False) -> dict:

@@ -36,11 +36,9 @@ def switch(div, curl, c0, h):
 
 
 @njit(cache=True, inline="always")
-def pair_factor(viscosity_switch, f_i, f_j):
-    """The factor of a pair's artificial viscosity: (f_i + f_j) / 2 with the switch, else 1."""
-    if viscosity_switch == 1:
-        return like(f_i, 0.5) * (f_i + f_j)
-    return like(f_i, 1.0)
+def pair_factor(f_i, f_j):
+    """The factor of a pair's artificial viscosity with the switch: (f_i + f_j) / 2."""
+    return like(f_i, 0.5) * (f_i + f_j)
 
 
 @njit(cache=True, inline="always")

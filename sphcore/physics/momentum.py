@@ -89,8 +89,10 @@ def acceleration_row(kernel, viscosity, viscosity_switch, pressure_gradient, per
                 f = like(dw_over_r, 0.0)
             if viscosity == 1:  # Viscosity.ARTIFICIAL
                 vdotx = ((v[i, 0] - v[j, 0]) * dx + (v[i, 1] - v[j, 1]) * dy + (v[i, 2] - v[j, 2]) * dz)
-                f += (pair_factor(viscosity_switch, balsara[i], balsara[j])  # Balsara's switch (balsara.py)
-                      * artificial_pair(m[j], vdotx, r2, rho_i, rho[j], dw_over_r, prm.alpha, prm.c0, prm.h))
+                av = artificial_pair(m[j], vdotx, r2, rho_i, rho[j], dw_over_r, prm.alpha, prm.c0, prm.h)
+                if viscosity_switch == 1:  # Balsara's switch (balsara.py); without it ``balsara`` has one row
+                    av *= pair_factor(balsara[i], balsara[j])
+                f += av
             ax += f * dx
             ay += f * dy
             az += f * dz
