@@ -107,7 +107,7 @@ def open_recording(run_id: str, record: Path | None = None, spawn: bool = False,
 def info_text(scene, particles: int, world: int, changes=()) -> str:
     s, t, f = scene.sph, scene.time, scene.forces
     alpha = (f"alpha = {artificial_alpha(scene):.4g} (nu = {s.alpha_nu:g} m²/s)" if s.alpha_nu > 0
-             else f"alpha = {s.alpha:g}")
+             else f"alpha = {s.alpha:g}") + (", Balsara's switch" if s.viscosity_switch == "balsara" else "")
     visc = {"artificial": f"artificial, {alpha}", "none": "none"}.get(s.viscosity,
                                                                       f"{s.viscosity}, nu = {s.nu:g} m²/s")
     lines = [

@@ -148,3 +148,9 @@ def test_peers_drop_a_ghost_f_outside_zero_to_one_and_stay_bitwise_equal():
     a, b = calm.final_arrays(), hit.final_arrays()
     for key in ("id", "x", "v", "rho"):
         assert np.array_equal(a[key], b[key]), key
+
+
+def test_the_viewer_says_the_switch_is_on():
+    from nodes.viewer import info_text
+    assert "artificial, alpha = 0.1, Balsara's switch" in info_text(block_scene(), 400, 1)
+    assert "Balsara" not in info_text(block_scene("none"), 400, 1)

@@ -95,6 +95,21 @@ def children(pid):
     return out
 
 
+def _group_processes(pgid):
+    """[(pid, state, command)] of the processes in process group ``pgid``."""
+    out = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+                cmd = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode()[:160]
+            except OSError:
+                continue
+            if int(fields[2]) == pgid:
+                out.append((int(entry.name), fields[0], cmd))
+    return out
+
+
 @pytest.mark.parametrize("how", ["kill-9", "ctrl-c"])
 def test_a_killed_peer_or_ctrl_c_stops_every_process_quickly(how, tmp_path):
     # Given a 2-peer run that would take minutes
@@ -110,7 +125,12 @@ def test_a_killed_peer_or_ctrl_c_stops_every_process_quickly(how, tmp_path):
         os.kill(peers["1"], signal.SIGKILL)
     else:
         os.killpg(p.pid, signal.SIGINT)
-    rc = p.wait(timeout=30)
+    try:
+        rc = p.wait(timeout=30)
+    except subprocess.TimeoutExpired:  # say which processes were still there, and what they logged
+        left = _group_processes(p.pid)
+        os.killpg(p.pid, signal.SIGKILL)
+        raise AssertionError(f"{how}: still running 30 s later: {left}\n{log.text()[-6000:]}") from None
     elapsed = time.perf_counter() - t0
     err = log.text()
     # Then the launcher and every peer exit non-zero within seconds, saying why; nothing is written

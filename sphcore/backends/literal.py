@@ -234,4 +234,7 @@ def _serve():
 
 
 if __name__ == "__main__":
-    _serve()
+    try:
+        _serve()
+    except KeyboardInterrupt:  # Ctrl-C reached the run's process group: the asking process stops too
+        sys.exit(130)          # (no traceback on the user's terminal)
