@@ -95,6 +95,24 @@ def children(pid):
     return out
 
 
+def _sigint_as_at_a_terminal():
+    """In the child before exec: SIGINT handled by default and not blocked, as a shell's foreground
+    job has it. A process started with SIGINT ignored keeps ignoring it (the POSIX convention for
+    background jobs, which Python and sph follow); in three cold full-suite runs (2026-12-06) every
+    process of this test's run ignored the Ctrl-C, as if the test worker had SIGINT ignored or
+    blocked by then (not found which earlier test does that; alone the test passed every time)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
+def _sigint_state():
+    """This process's SIGINT: its Python handler and whether the kernel has it ignored or blocked."""
+    status = {k: v for k, v in (line.split(":", 1) for line in Path("/proc/self/status").read_text().splitlines())}
+    bit = 1 << (signal.SIGINT - 1)
+    return (f"handler {signal.getsignal(signal.SIGINT)}, ignored {bool(int(status['SigIgn'], 16) & bit)}, "
+            f"blocked {bool(int(status['SigBlk'], 16) & bit)}")
+
+
 def _group_processes(pgid):
     """[(pid, state, command)] of the processes in process group ``pgid``."""
     out = []
@@ -114,7 +132,7 @@ def _group_processes(pgid):
 def test_a_killed_peer_or_ctrl_c_stops_every_process_quickly(how, tmp_path):
     # Given a 2-peer run that would take minutes
     p = sph("run", DAM, *SMALL, "--steps", "100000", "--out", str(tmp_path / "o"), "--peers", "2",
-            "--set", "run.log_every=20")
+            "--set", "run.log_every=20", preexec_fn=_sigint_as_at_a_terminal)
     log = Lines(p.stderr)
     log.wait_for("peer 0 sph.run INFO step", timeout=120)
     peers = {cmd[cmd.index("--rank") + 1]: pid for pid, cmd in children(p.pid) if "--rank" in cmd}
@@ -130,7 +148,8 @@ def test_a_killed_peer_or_ctrl_c_stops_every_process_quickly(how, tmp_path):
     except subprocess.TimeoutExpired:  # say which processes were still there, and what they logged
         left = _group_processes(p.pid)
         os.killpg(p.pid, signal.SIGKILL)
-        raise AssertionError(f"{how}: still running 30 s later: {left}\n{log.text()[-6000:]}") from None
+        raise AssertionError(f"{how}: still running 30 s later: {left}; this process's SIGINT: {_sigint_state()}\n"
+                             f"{log.text()[-6000:]}") from None
     elapsed = time.perf_counter() - t0
     err = log.text()
     # Then the launcher and every peer exit non-zero within seconds, saying why; nothing is written
