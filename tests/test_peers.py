@@ -81,18 +81,22 @@ class Lines:
         return "".join(self.lines)
 
 
-def children(pid):
+def _processes():
+    """[(pid, its /proc stat fields after the command name, its command line)] of every process."""
     out = []
     for entry in Path("/proc").iterdir():
         if entry.name.isdigit():
             try:
-                stat = (entry / "stat").read_text()
+                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
                 cmd = (entry / "cmdline").read_bytes().split(b"\0")
             except OSError:
                 continue
-            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
-                out.append((int(entry.name), [c.decode() for c in cmd]))
+            out.append((int(entry.name), fields, [c.decode() for c in cmd]))
     return out
+
+
+def children(pid):
+    return [(p, cmd) for p, fields, cmd in _processes() if int(fields[1]) == pid]
 
 
 def _sigint_as_at_a_terminal():
@@ -115,17 +119,7 @@ def _sigint_state():
 
 def _group_processes(pgid):
     """[(pid, state, command)] of the processes in process group ``pgid``."""
-    out = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-                cmd = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode()[:160]
-            except OSError:
-                continue
-            if int(fields[2]) == pgid:
-                out.append((int(entry.name), fields[0], cmd))
-    return out
+    return [(p, fields[0], " ".join(cmd)[:160]) for p, fields, cmd in _processes() if int(fields[2]) == pgid]
 
 
 @pytest.mark.parametrize("how", ["kill-9", "ctrl-c"])
