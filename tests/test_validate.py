@@ -200,3 +200,85 @@ def test_faxens_series_matches_an_independent_finite_element_drag():
     assert faxen_drag(0.4) == pytest.approx(52.2905, rel=1e-2)
     assert faxen_drag(0.01) == pytest.approx(4.0 * math.pi / (math.log(100.0) - 0.9157), rel=1e-3)
     assert faxen_drag(0.1) < faxen_drag(0.2) < faxen_drag(0.3)
+
+
+def _fake_case(calls, refuse=(), same_as_first=(), speeds=(1.0, 1.02, 1.06, 1.03, 1.01, 0.99, 1.04, 1.05)):
+    """A stand-in for a case: its figures depend on how many orders ran before it; it refuses the
+    orders in ``refuse`` like a scene would and reports the orders in ``same_as_first`` as resolving
+    to the first one's sums."""
+    from launch.validate import Metric, SceneError
+
+    def case(quick, out, backend, opts):
+        order = tuple(o for o in opts.overrides if o.startswith("run."))
+        if order in refuse:
+            raise SceneError(f"{' '.join(order) or 'the case'}: refused by this scene")
+        k = len(calls)
+        calls.append(opts.overrides)
+        opts.stats["sums_order"] = 0 if order in same_as_first else k
+        q = speeds[k]
+        return [Metric("fake.error", 0.01 * (k + 1), 0.025, "e"),
+                Metric("fake.speed", abs(q / 1.05 - 1.0), 0.03, "s", quantity=q, reference=1.05)]
+    return case
+
+
+def test_orders_give_each_metric_its_mean_and_spread_over_distinct_orders(tmp_path, capsys, monkeypatch):
+    from launch import validate as V
+    calls = []
+    monkeypatch.setitem(V.CASES, "fake", _fake_case(calls, same_as_first={("run.cells_per_support=1",)}))
+    rc = run_validate(["fake"], quick=True, out=tmp_path, overrides=("sph.alpha=0.02",), orders=3)
+    lines = {line.split()[0]: line for line in capsys.readouterr().out.splitlines() if line.startswith("fake.")}
+    # the case as configured, then the skin of 0; the cells of H resolved to the first order's sums here
+    # (not counted), so the next order ran; the user's --set comes after each order's keys
+    assert calls == [("sph.alpha=0.02",), ("run.neighbour_skin=0", "sph.alpha=0.02"),
+                     ("run.cells_per_support=1", "sph.alpha=0.02"),
+                     ("run.neighbour_skin=0", "run.cells_per_support=1", "sph.alpha=0.02")]
+    error = lines["fake.error"].split()
+    assert float(error[1]) == pytest.approx((0.01 + 0.02 + 0.04) / 3, rel=1e-3) and error[3] == "PASS"
+    assert "the orders straddle the tolerance" in lines["fake.error"] and "each 0.01, 0.02, 0.04" in lines["fake.error"]
+    # the relative metric compares the mean quantity (1.0, 1.02, 1.03), not the mean of the errors
+    speed = lines["fake.speed"].split()
+    assert float(speed[1]) == pytest.approx(abs((1.0 + 1.02 + 1.03) / 3 / 1.05 - 1.0), rel=1e-3)
+    assert "against 1.05" in lines["fake.speed"] and speed[3] == "FAIL" and rc == 1  # 1.0167: 3.2 % under
+    assert (tmp_path / "fake_orders.png").stat().st_size > 10_000
+
+
+def test_a_mean_on_target_says_when_each_order_alone_misses(tmp_path, capsys, monkeypatch):
+    from launch import validate as V
+    monkeypatch.setitem(V.CASES, "fake", _fake_case([], speeds=(1.0, 1.1)))
+    assert run_validate(["fake"], quick=True, out=tmp_path, orders=2) == 0  # speeds 1.0 and 1.1: mean 1.05
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("fake.speed"))
+    assert float(line.split()[1]) == 0.0 and "each order alone misses the tolerance" in line
+
+
+def test_orders_a_scene_refuses_are_left_out_and_said(tmp_path, capsys, monkeypatch, caplog):
+    from launch import validate as V
+    calls = []
+    refused = {("run.neighbour_skin=0.1",), ("run.neighbour_skin=0.1", "run.cells_per_support=1")}
+    monkeypatch.setitem(V.CASES, "fake", _fake_case(calls, refuse=refused))
+    with caplog.at_level("WARNING", logger="sph.validate"):
+        run_validate(["fake"], quick=True, out=tmp_path, orders=8)
+    assert len(calls) == 6  # 8 orders, 2 refused
+    assert "6 orders of the sums (8 asked" in capsys.readouterr().out
+    assert "6 of the 8 orders asked for ran" in caplog.text and "refused by this scene" in caplog.text
+
+
+def test_the_first_order_is_the_case_itself_and_its_errors_stand(tmp_path, monkeypatch):
+    from launch import validate as V
+    monkeypatch.setitem(V.CASES, "fake", _fake_case([], refuse={()}))
+    with pytest.raises(V.SceneError):
+        run_validate(["fake"], quick=True, out=tmp_path, orders=2)
+
+
+def test_orders_refuse_a_set_of_the_keys_they_vary(tmp_path, capsys):
+    assert main(["validate", "dam_break", "--orders", "2", "--set", "run.cells_per_support=1",
+                 "--out", str(tmp_path)]) == 2
+    assert "the orders vary run.neighbour_skin and run.cells_per_support" in capsys.readouterr().err
+
+
+def test_the_dam_break_in_two_orders_differs_only_in_its_last_bits(tmp_path, capsys):
+    # the orders really change the rounding (the figures differ), and not the model (they stay close)
+    run_validate(["dam_break"], quick=True, out=tmp_path, orders=2)
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("dam_break.front_speed_relative"))
+    each = [float(v) for v in re.search(r"each order's metric ([0-9.e-]+), ([0-9.e-]+)", line).groups()]
+    assert each[0] != each[1] and abs(each[0] - each[1]) < 0.05
+    assert (tmp_path / "dam_break.png").exists() and (tmp_path / "dam_break_orders.png").exists()
