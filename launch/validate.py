@@ -87,6 +87,18 @@ class CaseOptions:
     overrides: tuple = ()
     plot: bool = True
     stats: dict = field(default_factory=dict)
+    orders_run: dict = field(default_factory=dict)  # run_orders: the sums already run, (skin, cells per H) -> label
+
+    def check_order(self, resolved: tuple):
+        """Record the run's order of the sums, (list skin, grid cells per support); RepeatedOrder if
+        ``orders_run`` holds it already (run_orders: the same sums twice would fake an agreement)."""
+        self.stats["sums_order"] = resolved
+        if resolved in self.orders_run:
+            raise RepeatedOrder(f"the same sums as {self.orders_run[resolved]} here")
+
+
+class RepeatedOrder(Exception):
+    """A run of run_orders whose sums, resolved by its scene and backend, one already ran."""
 
 
 class _Clock:
@@ -96,6 +108,7 @@ class _Clock:
 
     def __init__(self, sim, opts: CaseOptions, name: str, t_end: float):
         self.sim, self.opts, self.name, self.t_end, self.t0 = sim, opts, name, t_end, None
+        opts.check_order((list_skin(sim.scene, opts.backend), grid_reach(sim.scene)))  # before any step
 
     def tick(self):
         sim = self.sim
@@ -113,8 +126,7 @@ class _Clock:
         wall = time.perf_counter() - self.t0 if self.t0 is not None else float("nan")
         sim = self.sim
         self.opts.stats.update(particles=sim.n_particles, steps=sim.step_index - self.steps0,
-                               sim_time=sim.t - self.time0, wall_s=wall,
-                               sums_order=(list_skin(sim.scene, self.opts.backend), grid_reach(sim.scene)))
+                               sim_time=sim.t - self.time0, wall_s=wall)
         if sim.dfsph:  # iterations per step of the incompressible solver's two solves
             for name, st in sim.solver_stats.items():
                 self.opts.stats[f"{name}_iterations"] = st["iterations"] / max(st["steps"], 1)
@@ -1452,7 +1464,8 @@ CASES = {"hydrostatic": hydrostatic, "hydrostatic_3d": hydrostatic_3d, "dam_brea
 # added and nothing else (the same neighbours, the same model), so what differs between them is
 # rounding, amplified by the flow: a chaotic read-out such as the dam-break front's late speed moves
 # by several per cent with it (docs/VALIDATION.md). Orders a scene refuses (a skin on the GPU, or one
-# that a short periodic axis cannot hold) or that resolve to one already run are left out.
+# that a short periodic axis cannot hold) or that resolve to one already run (the automatic skin is 0
+# on the GPU: RepeatedOrder, raised before the first step) are left out.
 ORDERS = ((), ("run.neighbour_skin=0",), ("run.cells_per_support=1",),
           ("run.neighbour_skin=0", "run.cells_per_support=1"), ("run.neighbour_skin=0.1",),
           ("run.neighbour_skin=0.1", "run.cells_per_support=1"), ("run.neighbour_skin=0.3",),
@@ -1460,31 +1473,28 @@ ORDERS = ((), ("run.neighbour_skin=0",), ("run.cells_per_support=1",),
 ORDER_KEYS = ("run.neighbour_skin", "run.cells_per_support")
 
 
-def run_orders(name: str, quick: bool, out: Path, backend: str, overrides: tuple, orders: int) -> list[Metric]:
+def run_orders(name: str, quick: bool, out: Path, backend: str, overrides: tuple, orders: int,
+               dx: float | None = None) -> list[Metric]:
     """Case ``name`` in up to ``orders`` distinct orders of its sums (ORDERS); each metric becomes its
     mean over them (a relative metric with a quantity: the mean quantity against the reference), its
     note the spread and every order's figure. The first order's run draws the case's plot; the spread
-    is drawn in OUT/<name>_orders.png."""
+    is drawn in OUT/<name>_orders.png. ``dx``: another spacing than the case's (a study; CaseOptions)."""
     runs, left_out = [], []  # (order, its metrics); 'order: why it was not counted'
-    done = {}  # resolved (skin, cells per support) -> the order that ran it
+    done = {}  # resolved (skin, cells per support) -> the order that ran it (checked before a run steps)
     for order in ORDERS:
         if len(runs) == orders:
             break
         label = " ".join(order) or "as configured"
         log.info("%s (%s), order %d of %d: %s", name, "quick" if quick else "full", len(runs) + 1, orders, label)
-        opts = CaseOptions(backend, overrides=(*order, *overrides), plot=not runs)
+        opts = CaseOptions(backend, dx=dx, overrides=(*order, *overrides), plot=not runs, orders_run=done)
         try:
             metrics = CASES[name](quick, out, backend, opts)
-        except SceneError as e:
+        except (SceneError, RepeatedOrder) as e:
             if not order:
                 raise  # the case itself: the user's overrides
             left_out.append(f"{label}: {e}")
             continue
-        resolved = opts.stats.get("sums_order")
-        if resolved in done:
-            left_out.append(f"{label}: the same sums as {done[resolved]} here")
-            continue
-        done[resolved] = label
+        done[opts.stats["sums_order"]] = label
         runs.append((label, metrics))
     combined = [_combined(m.name, [x for _, ms in runs for x in ms if x.name == m.name], orders) for m in runs[0][1]]
     if len(runs) < orders:

@@ -214,7 +214,7 @@ def _fake_case(calls, refuse=(), same_as_first=(), speeds=(1.0, 1.02, 1.06, 1.03
             raise SceneError(f"{' '.join(order) or 'the case'}: refused by this scene")
         k = len(calls)
         calls.append(opts.overrides)
-        opts.stats["sums_order"] = 0 if order in same_as_first else k
+        opts.check_order(0 if order in same_as_first else k)  # as _Clock does before the first step
         q = speeds[k]
         return [Metric("fake.error", 0.01 * (k + 1), 0.025, "e"),
                 Metric("fake.speed", abs(q / 1.05 - 1.0), 0.03, "s", quantity=q, reference=1.05)]
@@ -282,3 +282,18 @@ def test_the_dam_break_in_two_orders_differs_only_in_its_last_bits(tmp_path, cap
     each = [float(v) for v in re.search(r"each order's metric ([0-9.e-]+), ([0-9.e-]+)", line).groups()]
     assert each[0] != each[1] and abs(each[0] - each[1]) < 0.05
     assert (tmp_path / "dam_break.png").exists() and (tmp_path / "dam_break_orders.png").exists()
+
+
+def test_a_case_stops_before_stepping_when_its_sums_already_ran(monkeypatch):
+    # on the GPU the automatic skin is 0: "as configured" and "skin 0" are the same sums; the case's
+    # clock says so before a step is taken
+    from launch import validate as V
+    from sphcore.scene import grid_reach, list_skin, load_scene
+    from sphcore.solver import Simulation
+    scene = load_scene(CONFIGS / "hydrostatic_2d.toml", ["particles.spacing=0.05"])
+    sim = Simulation(scene, "f64")
+    resolved = (list_skin(scene, "cpu"), grid_reach(scene))
+    V._Clock(sim, V.CaseOptions(), "x", 1.0)  # a first order: nothing ran before it
+    with pytest.raises(V.RepeatedOrder, match="the same sums as skin 0 here"):
+        V._Clock(sim, V.CaseOptions(orders_run={resolved: "skin 0"}), "x", 1.0)
+    assert sim.step_index == 0
