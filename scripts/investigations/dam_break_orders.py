@@ -9,6 +9,7 @@ a = 0.2 m: 0.01 = a/20 (the quick case), 0.005 = a/40 (the full case), 0.0025 = 
 particles, about 4 minutes a run on 2 cores).
 """
 import argparse
+import logging
 from pathlib import Path
 
 from launch.validate import ORDERS, run_orders
@@ -23,6 +24,7 @@ def main():
     ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="a scene override for every run (repeatable), after the case's own")
     args = ap.parse_args()
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s", datefmt="%H:%M:%S")
     args.out.mkdir(parents=True, exist_ok=True)
     print(f"dam break at a/{0.2 / args.spacing:.0f}, {args.orders} orders of its sums"
           + (f"; overrides {' '.join(args.set)}" if args.set else ""))
