@@ -1498,6 +1498,7 @@ def run_orders(name: str, quick: bool, out: Path, backend: str, overrides: tuple
             if not order:
                 raise  # the case itself: the user's overrides
             left_out.append(f"{label}: {e}")
+            log.info("%s: order %s left out: %s", name, label, e)
             continue
         done[opts.stats["sums_order"]] = label
         runs.append((label, metrics))

@@ -256,11 +256,12 @@ def test_orders_a_scene_refuses_are_left_out_and_said(tmp_path, capsys, monkeypa
     calls = []
     refused = {("run.neighbour_skin=0.1",), ("run.neighbour_skin=0.1", "run.cells_per_support=1")}
     monkeypatch.setitem(V.CASES, "fake", _fake_case(calls, refuse=refused))
-    with caplog.at_level("WARNING", logger="sph.validate"):
+    with caplog.at_level("INFO", logger="sph.validate"):
         run_validate(["fake"], quick=True, out=tmp_path, orders=8)
     assert len(calls) == 6  # 8 orders, 2 refused
     assert "6 orders of the sums (8 asked" in capsys.readouterr().out
     assert "6 of the 8 orders asked for ran" in caplog.text and "refused by this scene" in caplog.text
+    assert "fake: order run.neighbour_skin=0.1 left out: run.neighbour_skin=0.1: refused by this scene" in caplog.text
 
 
 def test_the_first_order_is_the_case_itself_and_its_errors_stand(tmp_path, monkeypatch):
