@@ -535,7 +535,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "render":
             return _cmd_render(args)
         if args.command == "validate":
-            from launch.validate import CASE_ORDERS, CASES, ORDER_KEYS, run_validate
+            from launch.validate import CASES, ORDER_KEYS, case_orders, run_validate
             names = list(CASES) if args.all else args.cases
             unknown = [c for c in names if c not in CASES]
             if not names or unknown:
@@ -546,8 +546,7 @@ def main(argv: list[str] | None = None) -> int:
                 raise UsageError(f"validate --set {spacing[0]}: each case sets its own spacing (full, or --quick); "
                                  "the metrics' reference depends on it")
             varied = [o for o in args.overrides if o.split("=", 1)[0].strip() in ORDER_KEYS]
-            orders = {n: args.orders or CASE_ORDERS.get(n, 1) for n in names}
-            many = [(n, k) for n, k in orders.items() if k > 1]
+            many = [(n, case_orders(n, args.orders)) for n in names if case_orders(n, args.orders) > 1]
             if varied and many:
                 raise UsageError(f"validate --set {varied[0]}: {many[0][0]} runs in {many[0][1]} orders of its sums "
                                  f"(--orders{'' if args.orders else ', its default'}), which vary "

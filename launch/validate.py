@@ -1470,12 +1470,17 @@ ORDERS = ((), ("run.neighbour_skin=0",), ("run.cells_per_support=1",),
           ("run.neighbour_skin=0", "run.cells_per_support=1"), ("run.neighbour_skin=0.1",),
           ("run.neighbour_skin=0.1", "run.cells_per_support=1"), ("run.neighbour_skin=0.3",),
           ("run.neighbour_skin=0.3", "run.cells_per_support=1"))
-ORDER_KEYS = ("run.neighbour_skin", "run.cells_per_support")
+ORDER_KEYS = tuple(dict.fromkeys(o.split("=", 1)[0] for order in ORDERS for o in order))  # the keys they vary
 # Cases run in several orders unless --orders says otherwise: the 2D dam break's front is a chaotic
 # read-out (its late speed moves by 1-2 % with the rounding alone, its RMS straddled the full case's
 # 3 % target: docs/VALIDATION.md), and four orders halve the error of its mean for ~4x a run (under
 # 2 minutes in all, full). The 3D case (8 minutes a run) and every other case run once.
 CASE_ORDERS = {"dam_break": 4}
+
+
+def case_orders(name: str, orders: int | None) -> int:
+    """How many orders case ``name`` runs in: ``orders`` (--orders), or its own (CASE_ORDERS, else 1)."""
+    return CASE_ORDERS.get(name, 1) if orders is None else orders
 
 
 def run_orders(name: str, quick: bool, out: Path, backend: str, overrides: tuple, orders: int,
@@ -1579,7 +1584,7 @@ def run_validate(names: list[str], quick: bool, out: Path, backend: str = "cpu",
     if overrides:
         print(f"scene overrides: {' '.join(overrides)}")
     for name in names:
-        k = CASE_ORDERS.get(name, 1) if orders is None else orders
+        k = case_orders(name, orders)
         if k > 1:
             metrics = run_orders(name, quick, out, backend, tuple(overrides), k)
         else:
