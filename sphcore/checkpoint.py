@@ -123,7 +123,8 @@ def _write_npz(file, arrays: dict):
 
 def write_part(root: Path, step: int, rank: int, sim) -> dict:
     """Write this peer's owned particles; returns its manifest entry. CheckpointWriteError if it
-    cannot be written (the partial file is removed first)."""
+    cannot be written (this peer's partial file is removed first; the shared staging folder is
+    left for rank 0 to discard)."""
     folder = staging(root, step)
     arrays = part_arrays(sim)
     path = folder / part_name(rank)
@@ -138,10 +139,9 @@ def write_part(root: Path, step: int, rank: int, sim) -> dict:
     except OSError as e:
         for leftover in (tmp, path):
             leftover.unlink(missing_ok=True)
-        try:
-            folder.rmdir()  # only if no other peer's part is in it
-        except OSError:
-            pass
+        # The staging folder stays: another peer may have made it and be about to write its part
+        # into it (removing it here, even empty, failed that peer's write too). Rank 0 removes the
+        # folder once every peer has answered (Checkpoints.save -> discard).
         raise _write_error(step, path, e, need) from None
     return {"file": part_name(rank), "particles": len(arrays["id"]), "sha256": digest}
 

@@ -435,6 +435,31 @@ sys.exit(main(sys.argv[1:]))
 """
 
 
+def test_a_peers_failed_part_leaves_the_staging_folder_to_the_others(tmp_path, monkeypatch):
+    # Given a step's staging folder that peer 0 has just made (its part not written yet)
+    scene = load_scene(DAM2D, ["particles.spacing=0.02"])
+    sim = Simulation(scene, "f64")
+    root = tmp_path / "checkpoints"
+    checkpoint.staging(root, 40).mkdir(parents=True)
+    real = checkpoint._write_npz
+
+    def full_disk(file, arrays):
+        file.write(b"half a part")
+        raise OSError(errno.ENOSPC, "No space left on device")
+    # When peer 1's part fails (disk full)
+    monkeypatch.setattr(checkpoint, "_write_npz", full_disk)
+    with pytest.raises(checkpoint.CheckpointWriteError, match="No space left on device"):
+        checkpoint.write_part(root, 40, 1, sim)
+    # Then nothing of peer 1's part is left, the folder is, and peer 0 still writes its part into it
+    # (the folder went with the failed part once, and peer 0's write failed with it: rank 0 discards it)
+    assert sorted(p.name for p in checkpoint.staging(root, 40).iterdir()) == []
+    monkeypatch.setattr(checkpoint, "_write_npz", real)
+    entry = checkpoint.write_part(root, 40, 0, sim)
+    assert entry["file"] == "peer_0000.npz"
+    checkpoint.discard(root, 40)
+    assert not checkpoint.staging(root, 40).exists()
+
+
 def test_when_one_peers_part_fails_rank_0_commits_nothing_of_that_step(tmp_path):
     # Given two peers started by hand, peer 1's disk full at checkpoint step 40
     from launch.local import free_ports
