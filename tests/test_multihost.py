@@ -76,7 +76,10 @@ def test_a_message_lost_between_hosts_is_sent_again_and_the_bits_hold(tmp_path, 
     for key in ("id", "x", "v", "rho"):
         assert np.array_equal(got[key], reference[key]), key
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
-    assert summary["resent_messages"] == 1 and summary["dropped_messages"] == 0
+    # (the lost message once; a peer merely slow for 2 s on a loaded machine is asked again too, and
+    # every such request is logged: no message is sent again unasked)
+    asks = err.count("asked it to send that again")
+    assert 1 <= summary["resent_messages"] <= asks and summary["dropped_messages"] == 0, err
 
 
 def test_a_host_cut_off_mid_run_is_named_and_nothing_hangs(tmp_path):

@@ -209,7 +209,11 @@ def test_a_lost_message_is_asked_for_again_and_the_run_is_unchanged(phase, step,
     # and the summary counts what each peer did: nothing dropped, one message sent again
     peers = json.loads((tmp_path / "two" / "summary.json").read_text())["per_peer"]
     assert [p["dropped_messages"] for p in peers] == [0, 0]
-    assert peers[0]["resends"]["sent"] == {"1": 1} and peers[1]["resends"]["asked"]["0"] >= 1
+    # (the lost message once; peer 1 may have asked for a merely slow one too on a loaded machine,
+    # and every request is logged: nothing is sent again unasked)
+    asks = sum("peer 1, step " in line and "asked it to send that again" in line for line in err.splitlines())
+    assert list(peers[0]["resends"]["sent"]) == ["1"] and 1 <= peers[0]["resends"]["sent"]["1"] <= asks, err
+    assert peers[1]["resends"]["asked"]["0"] >= 1
     assert peers[1]["resends"]["sent"] == {}
 
 
