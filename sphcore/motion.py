@@ -210,34 +210,37 @@ class Path(_NoRotation):
     def largest_speed(self, reach: float = 0.0) -> float:
         """An upper bound of |u_w(t)| (m/s): on each interval each axis's speed is a quadratic in s,
         whose largest magnitude is at an end or at its vertex; the axes' largest, combined."""
-        h = np.diff(self.t)[:, None]
-        d = np.diff(self.X, axis=0)
-        m0, m1 = self.m[:-1], self.m[1:]
-        # u(s) = a s^2 + b s + c on each interval (per axis), the derivative of the Hermite cubic
-        a = 3 * (m0 + m1) - 6 * d / h
-        b = 6 * d / h - 4 * m0 - 2 * m1
-        c = m0
-        ends = np.maximum(np.abs(c), np.abs(a + b + c))
-        with np.errstate(divide="ignore", invalid="ignore"):
+        # a table of huge positions overflows to inf or NaN here: the caller refuses a bound that is
+        # not finite, naming the key, so numpy's own warnings would only repeat it
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            h = np.diff(self.t)[:, None]
+            d = np.diff(self.X, axis=0)
+            m0, m1 = self.m[:-1], self.m[1:]
+            # u(s) = a s^2 + b s + c on each interval (per axis), the derivative of the Hermite cubic
+            a = 3 * (m0 + m1) - 6 * d / h
+            b = 6 * d / h - 4 * m0 - 2 * m1
+            c = m0
+            ends = np.maximum(np.abs(c), np.abs(a + b + c))
             sv = np.where(a != 0, -b / (2 * a), -1.0)
-        inside = (sv > 0) & (sv < 1)
-        vertex = np.where(inside, np.abs(a * sv * sv + b * sv + c), 0.0)
-        per_axis = np.maximum(ends, vertex).max(axis=0)
+            inside = (sv > 0) & (sv < 1)
+            vertex = np.where(inside, np.abs(a * sv * sv + b * sv + c), 0.0)
+            per_axis = np.maximum(ends, vertex).max(axis=0)
         return float(math.hypot(*per_axis))
 
 
 def _monotone_slopes(t: np.ndarray, X: np.ndarray) -> np.ndarray:
     """Fritsch-Carlson slopes (k, 3) at the rows: 0 at the ends and where the table turns, else the
     weighted harmonic mean of the neighbouring secants (which keeps each interval monotone)."""
-    h = np.diff(t)[:, None]
-    delta = np.diff(X, axis=0) / h
+    with np.errstate(over="ignore", invalid="ignore"):  # huge tables: largest_speed's bound says so
+        h = np.diff(t)[:, None]
+        delta = np.diff(X, axis=0) / h
     m = np.zeros_like(X)
     if len(t) > 2:
         d0, d1 = delta[:-1], delta[1:]
         h0, h1 = h[:-1], h[1:]
         w1, w2 = 2 * h1 + h0, h1 + 2 * h0
         same = np.sign(d0) * np.sign(d1) > 0  # (d0 * d1 overflowed for a path of 1e300 m: a warning on stderr)
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             mean = (w1 + w2) / (w1 / d0 + w2 / d1)
         m[1:-1] = np.where(same, mean, 0.0)
     return m

@@ -179,6 +179,7 @@ def test_bad_input_exits_2_names_the_problem_and_writes_nothing(args, fragments,
 
 
 @pytest.mark.fast
+@pytest.mark.filterwarnings("error::RuntimeWarning")  # the refusal is the message, not numpy's overflow warnings
 def test_a_wall_path_whose_speed_is_not_a_number_is_refused(tmp_path, capsys):
     """A path of +-1.7e308 m makes the largest speed inf - inf = NaN, which `speed >= c0` let through:
     the run went on with the wall at an infinite speed (hostile-input sweep, 2026-12-06)."""
