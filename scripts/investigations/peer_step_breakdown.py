@@ -56,15 +56,21 @@ def part_of(rows, n_owned):
     return " (interior rows)" if rows.shape[0] > n_owned // 2 else " (boundary rows)"
 
 
-def instrument():
-    build = grid_mod.Grid.build_neighbours
+def wrap_lists(name):
+    """Time Grid.<name>(x, n_query, rows=None), interior and boundary rows apart."""
+    f = getattr(grid_mod.Grid, name)
 
-    def timed_build(self, x, n_query, rows=None):
+    def timed(self, x, n_query, rows=None):
         t0 = time.perf_counter()
-        out = build(self, x, n_query, rows)
-        T["build_neighbours" + part_of(rows, n_query)] += time.perf_counter() - t0
+        out = f(self, x, n_query, rows)
+        T[name + part_of(rows, n_query)] += time.perf_counter() - t0
         return out
-    grid_mod.Grid.build_neighbours = timed_build
+    setattr(grid_mod.Grid, name, timed)
+
+
+def instrument():
+    for name in ("build_neighbours", "build_candidates", "filter_neighbours"):
+        wrap_lists(name)
     for name in ("sort", "sort_ghosts"):
         wrap(grid_mod.Grid, name)
     for name in ("rebuild", "append_ghosts", "zone_rows", "split_rows", "rows_of", "set_rows"):
