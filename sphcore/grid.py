@@ -374,14 +374,25 @@ def neighbour_row(periodic, store_all, i, x, contiguous, cell_begin, cell_end, o
                 count = _scan_range(store_all, i, cell_begin[row + lo], cell_end[row + hi], x, xi, yi, zi,
                                     H2, period, periodic, nbr, count, cap)
             else:
+                # cell by cell, but cells whose rows follow one another in memory are scanned as one
+                # range (a peer's owned cells of the row, or its ghost cells: each kind is stored in
+                # cell order): the same rows in the same order as cell by cell, in fewer, longer scans
+                run_lo = 0
+                run_hi = 0
                 for dx in range(-left, right + 1):
                     cx = ix + dx
                     if cx < 0 or cx >= nx:
                         if not px:
                             continue
                         cx = (cx + nx) % nx
-                    count = _scan_range(store_all, i, cell_begin[row + cx], cell_end[row + cx], x, xi, yi,
-                                        zi, H2, period, periodic, nbr, count, cap)
+                    begin = cell_begin[row + cx]
+                    if begin != run_hi:
+                        count = _scan_range(store_all, i, run_lo, run_hi, x, xi, yi, zi, H2, period, periodic,
+                                            nbr, count, cap)
+                        run_lo = begin
+                    run_hi = cell_end[row + cx]
+                count = _scan_range(store_all, i, run_lo, run_hi, x, xi, yi, zi, H2, period, periodic, nbr, count,
+                                    cap)
     counts[i] = count
 
 

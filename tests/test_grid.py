@@ -186,6 +186,31 @@ def test_a_peer_with_ghost_rows_sees_the_same_neighbours_in_the_same_order(dims,
             assert got == reference[int(peer.id[i])]
 
 
+@pytest.mark.parametrize("periodic", [(False, False, False), (True, True, False)])
+@pytest.mark.parametrize("reach", [1, 2])
+def test_the_cell_by_cell_scan_gives_the_lists_of_the_row_at_once(periodic, reach):
+    # Given one process's particles, binned: each x-row of cells is one range of rows in memory
+    rng = np.random.default_rng(11)
+    L, H = np.array([1.2, 0.9, 0.6]), 0.15
+    lo, hi = np.zeros(3), L.copy()
+    for d in range(3):
+        if not periodic[d]:
+            lo[d] -= H
+            hi[d] += H
+    state = make_state(rng.uniform(0, L, size=(700, 3)), rng)
+    grid = Grid(lo, hi, H, periodic, np.float64, reach=reach)
+    grid.bin(state)
+    at_once = grid.nbr[: state.n].copy(), grid.counts[: state.n].copy()
+    # When the lists are built again through the path a peer with ghost rows takes (cells scanned
+    # one by one, runs of cells that follow one another in memory joined into one scan)
+    grid.contiguous = False
+    grid.build_neighbours(state.x, state.n)
+    # Then every list is the same, entry for entry
+    assert np.array_equal(grid.counts[: state.n], at_once[1])
+    for i in range(state.n):
+        assert np.array_equal(grid.nbr[i, : grid.counts[i]], at_once[0][i, : at_once[1][i]]), i
+
+
 @pytest.mark.parametrize("reach", [1, 2])
 def test_sorting_the_ghosts_after_the_owned_rows_gives_the_order_of_one_sort(reach):
     # Given a peer's owned rows (in no order) and its ghost rows after them, as in exchange 1
