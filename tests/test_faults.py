@@ -273,9 +273,10 @@ def test_a_killed_and_a_stopped_peer_are_restarted_from_the_newest_checkpoint_wi
     first = wait_checkpoint(out, 40, p)
     attempt1 = wait_peers(p.pid, 2)
     os.kill(attempt1[1], signal.SIGKILL)
+    at_kill = wait_checkpoint(out, first, p)  # (on a loaded machine the run may have checkpointed again)
     # ... and peer 0 of the restarted run is stopped (SIGSTOP) once that run has checkpointed too
     attempt2 = wait_peers(p.pid, 2, exclude=attempt1.values())
-    second = wait_checkpoint(out, first + 40, p)
+    second = wait_checkpoint(out, at_kill + 40, p)
     t_stop = time.perf_counter()
     os.kill(attempt2[0], signal.SIGSTOP)
     rc = p.wait(timeout=240)
@@ -285,14 +286,18 @@ def test_a_killed_and_a_stopped_peer_are_restarted_from_the_newest_checkpoint_wi
     assert rc == 0, err
     assert_same(reference, np.load(out / "final.npz"))
     assert "peer 1 was killed by signal 9 (SIGKILL)" in err
-    assert f"restarting from checkpoint step {first} (restart 1 of 2)" in err
+    summary = json.loads((out / "summary.json").read_text())
+    killed, stopped = summary["restarts"]
+    # the newest checkpoint when the launcher restarted: the one seen at the kill, or the next one if
+    # both parts of it were written before the kill and rank 0 committed it after
+    resumed = killed["resumed_from_step"]
+    assert first <= resumed <= at_kill + 40 and resumed % 40 == 0, (first, at_kill, resumed)
+    assert f"restarting from checkpoint step {resumed} (restart 1 of 2)" in err
     assert "peer 0 is stopped (SIGSTOP) and not answering" in err
     assert "(restart 2 of 2)" in err
-    summary = json.loads((out / "summary.json").read_text())
     assert summary["steps"] == int(STEPS) and summary["peers"] == 2
-    killed, stopped = summary["restarts"]
-    assert (killed["peer"], killed["signal"], killed["resumed_from_step"]) == (1, 9, first)
-    assert killed["step"] >= first and 0 <= killed["wall_s_lost"] <= killed["attempt_wall_s"]
+    assert (killed["peer"], killed["signal"]) == (1, 9)
+    assert killed["step"] >= resumed and 0 <= killed["wall_s_lost"] <= killed["attempt_wall_s"]
     assert (stopped["peer"], stopped["not_answering"], stopped["exit_code"]) == (0, True, None)
     assert stopped["resumed_from_step"] >= second and "stopped (SIGSTOP)" in stopped["how"]
     assert all(gone(pid) for pid in [*attempt1.values(), *attempt2.values()])
