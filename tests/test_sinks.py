@@ -56,6 +56,10 @@ def receiver(rrd: Path):
             proc.wait(timeout=10)
 
 
+# the headless `rerun --save` receiver writes its file without a footer when a signal stops it (SIGTERM
+# and SIGINT alike, rerun 0.41): reading it back falls back to a scan, with a warning; the run's own
+# recording (run.rrd) has its footer, and its reading stays under the default warning filters
+@pytest.mark.filterwarnings("ignore:RRD file has no footer/manifest.*live.rrd")
 def test_a_run_records_and_streams_to_a_running_viewer_at_once(tmp_path):
     # Given a headless Rerun receiver saving what it gets
     with receiver(tmp_path / "live.rrd") as (_, url):
