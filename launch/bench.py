@@ -26,7 +26,7 @@ import numpy as np
 
 from sphcore.children import module_command, module_env
 from sphcore.output import write_json
-from sphcore.scene import load_scene
+from sphcore.scene import load_scene, shear_viscosity
 from sphcore.solver import Simulation
 
 log = logging.getLogger("sph.bench")
@@ -157,6 +157,11 @@ def bench_case(scene_path: Path, dx: float, precision: str, threads: int, steps:
 # adaptive step, timed from the end of its first step. DFSPH runs at SPlisHSPlasH's defaults (its
 # TimeStepDFSPH: maxError 0.05 % of rho0 for the density solve, maxErrorV 0.1 % for the divergence
 # solve, largest step cflMaxTimeStepSize 0.005 s), so that both codes are asked for the same accuracy.
+# SPlisHSPlasH's DFSPH in `--until --external` runs twice: with the kinematic viscosity our scene's
+# viscosity acts with (scene.shear_viscosity: the same fluid, so the same flow speed and CFL steps)
+# and with the value its comparison used before 2026-12-07, 0.01 m^2/s (its "Standard" viscosity;
+# twelve times the dam break's artificial viscosity, a slower flow in fewer, longer steps)
+REFERENCE_VISCOSITY_BEFORE = 0.01
 DFSPH_DENSITY_TOLERANCE = 5.0e-4
 DFSPH_DIVERGENCE_TOLERANCE = 1.0e-3
 UNTIL_MAX_DT = 5.0e-3
@@ -209,9 +214,10 @@ def bench_until_case(scene_path: Path, dx: float, precision: str, threads: int, 
 def _until_row(r: dict) -> str:
     solves = "".join(f" {name}={s['iterations_per_step']:.1f}it/step" for name, s in r.get("solves", {}).items())
     skin = f" skin={r['neighbour_skin']:g} ({r['list_builds']} builds)" if r.get("neighbour_skin") else ""
+    viscosity = f" viscosity {r['viscosity']:.3g} m^2/s" if r["code"] != "sphfluid" and "viscosity" in r else ""
     return (f"{r['code']:>13} {r['method']:>6} {r.get('precision', 'f64'):>4} threads={r['threads']} "
             f"N={r['particles']:>8} to t={r['until_s']:g} s: {r['steps']:>6} steps, mean dt {r['mean_dt']:.2e} s, "
-            f"{r['wall_s']:7.1f} s wall, {r['sim_s_per_wall_s']:.4f} simulated s per wall s{solves}{skin}")
+            f"{r['wall_s']:7.1f} s wall, {r['sim_s_per_wall_s']:.4f} simulated s per wall s{solves}{skin}{viscosity}")
 
 
 def _until_cases(scene_path: Path, dx: float, args) -> list[dict]:
@@ -231,9 +237,13 @@ def _until_cases(scene_path: Path, dx: float, args) -> list[dict]:
         if not available("splishsplash"):
             print("  splishsplash: not installed (scripts/setup_bench.sh installs it); skipped", file=sys.stderr)
             return out
+        ours = shear_viscosity(load_scene(scene_path, _until_overrides(scene_path, dx, "dfsph")))
         for threads in args.threads:
-            out += _reference("splishsplash", "dfsph", dx, threads, _until_row, steps=1, timeout_s=3600,
-                              extra_args=["--until", repr(args.until), "--max-dt", repr(UNTIL_MAX_DT)])
+            for viscosity, basis in ((ours, "matched"), (REFERENCE_VISCOSITY_BEFORE, "as before")):
+                runs = _reference("splishsplash", "dfsph", dx, threads, _until_row, steps=1, timeout_s=3600,
+                                  extra_args=["--until", repr(args.until), "--max-dt", repr(UNTIL_MAX_DT),
+                                              "--viscosity", repr(viscosity)])
+                out += [dict(r, viscosity=viscosity, viscosity_basis=basis) for r in runs]
     return out
 
 
@@ -247,9 +257,12 @@ def _print_until_ratios(results: list[dict]):
         for o in ours:
             if o["threads"] == t["threads"] and abs(o["dx"] - t["dx"]) < 1e-12:
                 skin = f" skin={o['neighbour_skin']:g}" if o.get("neighbour_skin") else ""
+                fluid = ""
+                if "viscosity_basis" in t:  # the same fluid as ours, or the viscosity compared before
+                    fluid = f", its viscosity {t['viscosity']:.3g} m^2/s ({t['viscosity_basis']})"
                 print(f"  ours {o['method']} {o['precision']}{skin} vs {t['code']} {t['method']} threads={t['threads']} "
-                      f"N={o['particles']}/{t['particles']}: {o['sim_s_per_wall_s'] / t['sim_s_per_wall_s']:.2f}x "
-                      f"({o['steps']} / {t['steps']} steps)")
+                      f"N={o['particles']}/{t['particles']}{fluid}: "
+                      f"{o['sim_s_per_wall_s'] / t['sim_s_per_wall_s']:.2f}x ({o['steps']} / {t['steps']} steps)")
 
 
 def run_bench(args) -> int:

@@ -494,7 +494,8 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--until", type=_positive_float, default=None, metavar="T",
                        help="instead of --steps fixed steps: step the dam break from rest to T simulated seconds "
                             "with each solver's adaptive step and report simulated seconds per wall second; "
-                            "with --external, SPlisHSPlasH's DFSPH too (its CFL step, the same tolerances). "
+                            "with --external, SPlisHSPlasH's DFSPH too (its CFL step, the same tolerances), twice: "
+                            "with the viscosity our scene's fluid acts with, and with 0.01 m^2/s as compared before. "
                             "E.g. --until 0.5 --sizes 50000 --solvers wcsph dfsph --precisions f32 --threads 2")
     bench.add_argument("--solvers", nargs="+", choices=("wcsph", "dfsph"), default=["dfsph"],
                        help="--until: our solvers to run (default: dfsph)")

@@ -946,6 +946,19 @@ def artificial_alpha(s) -> float:
     return 2.0 * (s.dim + 2) * s.sph.alpha_nu / (s.sph.sound_speed * h)
 
 
+def shear_viscosity(s) -> float:
+    """The kinematic viscosity (m^2/s) that scene ``s``'s viscosity model acts with in a shear flow:
+    sph.nu for the Mueller and Morris viscosities, alpha c0 h / (2 (dim + 2)) for the artificial one
+    (Monaghan 2005, as ``artificial_alpha``), 0 without viscosity. What another code is given to run
+    the same fluid (``sph bench --until --external``)."""
+    if s.sph.viscosity in ("muller", "morris"):
+        return s.sph.nu
+    if s.sph.viscosity == "artificial":
+        h = 0.5 * s.sph.support * s.particles.spacing
+        return artificial_alpha(s) * s.sph.sound_speed * h / (2.0 * (s.dim + 2))
+    return 0.0
+
+
 def check_mesh_file(path: Path, key: str):
     """A mesh obstacle's file holds a closed-enough triangle mesh that PyVista reads; SceneError
     (one line) for an empty, truncated, corrupt or unknown file. VTK's own error printing is

@@ -47,10 +47,14 @@ def test_bench_until_steps_each_solver_from_rest_to_the_end_time_and_compares_li
     # DFSPH steps on the flow speed, WCSPH on the sound speed: far fewer steps to the same time
     assert runs["dfsph"]["steps"] * 5 < runs["wcsph"]["steps"]
     theirs = {"code": "splishsplash", "method": "dfsph", "threads": 1, "dx": dx, "particles": 600, "steps": 7,
-              "sim_s_per_wall_s": runs["dfsph"]["sim_s_per_wall_s"] / 2.0}
-    _print_until_ratios([runs["dfsph"], dict(runs["dfsph"], dx=2 * dx), theirs])
+              "sim_s_per_wall_s": runs["dfsph"]["sim_s_per_wall_s"] / 2.0, "viscosity": 8.6e-4,
+              "viscosity_basis": "matched"}
+    before = dict(theirs, sim_s_per_wall_s=runs["dfsph"]["sim_s_per_wall_s"] / 1.25, viscosity=0.01,
+                  viscosity_basis="as before")
+    _print_until_ratios([runs["dfsph"], dict(runs["dfsph"], dx=2 * dx), theirs, before])
     out = capsys.readouterr().out
-    assert out.count("vs splishsplash dfsph") == 1 and "2.00x" in out, out
+    assert out.count("vs splishsplash dfsph") == 2, out
+    assert "its viscosity 0.00086 m^2/s (matched): 2.00x" in out and "its viscosity 0.01 m^2/s (as before): 1.25x" in out
     # --skins: DFSPH reuses its lists with its automatic skin, and a list a step is timed beside it
     assert runs["dfsph"]["neighbour_skin"] == 0.45 and runs["dfsph"]["list_builds"] < runs["dfsph"]["steps"]
     plain = bench_until_case(DEFAULT_SCENE, dx, "f64", 1, "dfsph", until, skin=0.0)
@@ -59,3 +63,21 @@ def test_bench_until_steps_each_solver_from_rest_to_the_end_time_and_compares_li
     out = capsys.readouterr().out
     ratio = runs["dfsph"]["sim_s_per_wall_s"] / plain["sim_s_per_wall_s"]
     assert out.count("skin=0.45:") == 1 and f"{ratio:.3f}x" in out and "wcsph" not in out, out
+
+
+@pytest.mark.fast
+def test_the_viscosity_another_code_is_given_is_the_one_the_scene_acts_with():
+    """sph bench --until --external gives SPlisHSPlasH the kinematic viscosity of our scene's fluid: the
+    artificial viscosity's alpha c0 h / (2 (dim + 2)) (sph.alpha_nu is that figure), sph.nu for the
+    Morris and Mueller viscosities, none without."""
+    from launch.bench import DEFAULT_SCENE
+    from sphcore.scene import load_scene, shear_viscosity
+    scene = load_scene(DEFAULT_SCENE, ["particles.spacing=0.0125"])
+    h = 0.5 * scene.sph.support * 0.0125
+    assert shear_viscosity(scene) == pytest.approx(scene.sph.alpha * scene.sph.sound_speed * h / 10.0)
+    assert shear_viscosity(scene) == pytest.approx(8.625e-4)  # alpha 0.02, c0 30 m/s, support 2.3 dx, 3D
+    held = load_scene(DEFAULT_SCENE, ["particles.spacing=0.0125", "sph.alpha_nu=3.0e-4"])
+    assert shear_viscosity(held) == pytest.approx(3.0e-4)
+    morris = load_scene(DEFAULT_SCENE, ["particles.spacing=0.0125", "sph.viscosity='morris'", "sph.nu=2.5e-5"])
+    assert shear_viscosity(morris) == 2.5e-5
+    assert shear_viscosity(load_scene(DEFAULT_SCENE, ["sph.viscosity='none'"])) == 0.0
