@@ -942,8 +942,14 @@ def artificial_alpha(s) -> float:
     physics/viscosity.py)."""
     if s.sph.alpha_nu <= 0.0:
         return s.sph.alpha
+    return s.sph.alpha_nu / _shear_viscosity_per_alpha(s)
+
+
+def _shear_viscosity_per_alpha(s) -> float:
+    """c0 h / (2 (dim + 2)): the shear viscosity (m^2/s) of the artificial viscosity per unit alpha
+    (Monaghan 2005, sec. 4.1; h = support / 2, as in physics/viscosity.py)."""
     h = 0.5 * s.sph.support * s.particles.spacing
-    return 2.0 * (s.dim + 2) * s.sph.alpha_nu / (s.sph.sound_speed * h)
+    return s.sph.sound_speed * h / (2.0 * (s.dim + 2))
 
 
 def shear_viscosity(s) -> float:
@@ -954,8 +960,7 @@ def shear_viscosity(s) -> float:
     if s.sph.viscosity in ("muller", "morris"):
         return s.sph.nu
     if s.sph.viscosity == "artificial":
-        h = 0.5 * s.sph.support * s.particles.spacing
-        return artificial_alpha(s) * s.sph.sound_speed * h / (2.0 * (s.dim + 2))
+        return artificial_alpha(s) * _shear_viscosity_per_alpha(s)
     return 0.0
 
 
