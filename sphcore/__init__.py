@@ -12,15 +12,18 @@ frozen into the compiled code). Any change to the physics starts a fresh cache; 
 no kernel can see (scene.py, checkpoint.py, halo.py...) keeps it. Set NUMBA_CACHE_DIR to choose
 the folder yourself.
 
-Fused multiply-add is switched off for the code numba generates (the host CPU's features minus
-``fma``). numba emits the code it runs right after compiling through its JIT, and the code it
-caches through a separate object-code path; the two contract a * b + c into FMA in different
-places, so the process that compiled a kernel got different last bits than every later process
-that loaded it from the cache (measured: accelerations differed by 1 ulp). Without FMA both paths
-give the same bits, and a run is bitwise reproducible whichever process compiled its kernels —
-which the distributed runs (peers are separate processes) rely on. SPH_FMA=1 keeps FMA (faster,
-see docs/BENCHMARKS.md, but runs are then reproducible only among processes that loaded their
-kernels from the same cache); NUMBA_CPU_FEATURES overrides both.
+The generated code uses no fused multiply-add. numba emits the code it runs right after compiling
+through its JIT, and the code it caches through a separate object-code path; allowed to contract
+a * b + c into FMA, the two do it in different places, so the process that compiled a kernel got
+different last bits than every later process that loaded it from the cache (measured:
+accelerations differed by 1 ulp). The neighbour passes' floating-point licences therefore leave out
+'contract' (backends/generate.FASTMATH), and without it LLVM forms no FMA: both paths give the same
+bits, and a run is bitwise reproducible whichever process compiled its kernels — which the
+distributed runs (peers are separate processes) rely on. The CPU's features are left as they are:
+until 2026-12-07 FMA was kept out by taking ``fma`` off them, which on a CPU with AVX-512 also took
+AVX-512 off (LLVM makes AVX-512F depend on FMA), so every kernel was compiled for AVX2
+(docs/BENCHMARKS.md). SPH_FMA=1 grants 'contract' (faster, but runs are then reproducible only
+among processes that loaded their kernels from the same cache); NUMBA_CPU_FEATURES sets the features.
 """
 import hashlib
 import os
@@ -76,15 +79,4 @@ def _use_versioned_numba_cache():
     numba.config.CACHE_DIR = str(base / "numba" / _source_hash())
 
 
-def _no_fused_multiply_add():
-    if os.environ.get("NUMBA_CPU_FEATURES") or os.environ.get("SPH_FMA") == "1":
-        return
-    import numba
-    from numba.core.codegen import get_host_cpu_features
-    features = [f for f in get_host_cpu_features().split(",") if f]
-    features = [("-" + f[1:]) if f[1:] in ("fma", "fma4") else f for f in features]
-    numba.config.CPU_FEATURES = ",".join(features)
-
-
 _use_versioned_numba_cache()
-_no_fused_multiply_add()

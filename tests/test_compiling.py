@@ -1,6 +1,7 @@
 """Progress while numba compiles (launch/compiling.py): one line when a compilation starts, the
 elapsed time while it goes on, the total at the end; nothing for a function already compiled, nor
 for a warm run (its literal dispatch fires short compile events)."""
+import re
 import time
 
 import pytest
@@ -56,11 +57,12 @@ def test_the_process_that_compiles_the_kernels_gets_the_bits_of_every_process_th
     import numpy as np
     root = Path(__file__).resolve().parent.parent
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    env.pop("SPH_FMA", None)
     run = [sys.executable, "-m", "launch.cli", "run", "configs/dam_break_2d.toml", "--set", "particles.spacing=0.02",
            "--set", "sph.density=continuity", "--precision", "f64", "--steps", "300", "--no-viewer"]
-    # When one run compiles them and a second run loads them from the cache
-    cold = subprocess.run(run + ["--out", str(tmp_path / "cold")], cwd=root, env=env, capture_output=True, text=True,
-                          timeout=900)
+    # When one run compiles them (printing their machine code) and a second run loads them from the cache
+    cold = subprocess.run(run + ["--out", str(tmp_path / "cold")], cwd=root, env=dict(env, NUMBA_DUMP_ASSEMBLY="1"),
+                          capture_output=True, text=True, timeout=900)
     warm = subprocess.run(run + ["--out", str(tmp_path / "warm")], cwd=root, env=env, capture_output=True, text=True,
                           timeout=300)
     # Then both end with the same bits, the first said it compiled, and neither compiled in its own process
@@ -70,6 +72,13 @@ def test_the_process_that_compiles_the_kernels_gets_the_bits_of_every_process_th
     a, b = np.load(tmp_path / "cold" / "final.npz"), np.load(tmp_path / "warm" / "final.npz")
     for key in ("id", "x", "v", "rho"):
         assert np.array_equal(a[key], b[key]), key
+    # and no kernel holds a fused multiply-add (what the two paths once placed differently: sphcore/__init__.py),
+    # although the CPU's features, FMA among them, are left on
+    machine_code = cold.stdout + cold.stderr
+    assert machine_code.count("ASSEMBLY") > 20, "no machine code was printed"
+    fused = re.findall(r"\b(?:vf(?:n?m(?:add|sub)|maddsub|msubadd)\d{3}[ps][sdh]|f(?:n?madd|n?msub|mla|mls))\b",
+                       machine_code)
+    assert not fused, sorted(set(fused))
 
 
 PROBE = '''

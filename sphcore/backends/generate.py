@@ -22,12 +22,16 @@ from sphcore.stages import REDUCTIONS, reduction_slots
 
 # Floating-point licences for the neighbour passes: reassociation (the sums over neighbours become
 # partial sums LLVM can schedule; 25-30 % faster forces), reciprocals and ignoring the sign of zero.
-# 'contract' is listed, but the code generator has FMA switched off (sphcore/__init__.py: the
-# compiling and the cache-loading process would otherwise round differently), so nothing contracts.
-# Not 'nnan'/'ninf' (NaN must propagate to the health check) nor 'afn' (sqrt stays exact). Results
-# stay deterministic: the same compiled driver on the same neighbour order gives the same bits, on
-# one process or many.
-FASTMATH = ("arcp", "contract", "nsz", "reassoc")
+# Not 'contract': it lets LLVM fuse a * b + c into one FMA instruction, and numba's JIT and its
+# cache's object code fuse in different places, so the process that compiled a kernel would round
+# differently from every process that loads it (sphcore/__init__.py); without the licence no FMA is
+# formed (tests/test_compiling.py reads the machine code). SPH_FMA=1 grants it (faster, but runs
+# are then reproducible only among processes that loaded their kernels from the same cache). Not
+# 'nnan'/'ninf' (NaN must propagate to the health check) nor 'afn' (sqrt stays exact). Results stay
+# deterministic: the same compiled driver on the same neighbour order gives the same bits, on one
+# process or many.
+FASTMATH = (("arcp", "contract", "nsz", "reassoc") if os.environ.get("SPH_FMA") == "1"
+            else ("arcp", "nsz", "reassoc"))
 
 
 def _row_imports(stages) -> list[str]:
