@@ -46,6 +46,7 @@ from numba import literally, njit, prange
 
 from sphcore.backends.literal import literal_dispatch
 from sphcore.physics.real import like
+from sphcore.simd import AVX512, append_listed, append_range, lanes
 from sphcore.state import CARRIED
 
 
@@ -294,10 +295,19 @@ def _scan_span(store_all, i, lo, hi, x, xi, yi, zi, H2, period, periodic, nbr, c
     ``store_all`` (the CPU) it is branch-free: every candidate is stored at the next free column
     (column ``cap``, a spare, once the list is full) and the count advances only for a neighbour;
     about a third of the candidates are accepted, in no pattern a branch predictor could learn, so a
-    branch here mispredicts on most particles' every few candidates. On a GPU (``store_all`` false)
-    only neighbours are stored: there a store per candidate is a scattered write for every lane of a
-    warp, about four times the list's own writes. The lists are the same either way."""
-    for j in range(lo, hi):
+    branch here mispredicts on most particles' every few candidates. On a CPU with AVX-512 the range
+    goes through in chunks of simd.lanes candidates (16 in float32), one compress-store each
+    (simd.py), while a whole chunk fits below the capacity; the scalar loop takes the rest. On a
+    GPU (``store_all`` false) only neighbours are stored: there a store per candidate is a scattered
+    write for every lane of a warp, about four times the list's own writes. The lists are the same
+    every way."""
+    j0 = lo
+    if store_all and AVX512 and not periodic:
+        chunk = lanes(x)
+        while j0 < hi and count + chunk <= cap:
+            count = append_range(x, j0, min(chunk, hi - j0), xi, yi, zi, H2, nbr, i, count)
+            j0 += chunk
+    for j in range(j0, hi):
         dx, dy, dz = wrapped(periodic, xi - x[j, 0], yi - x[j, 1], zi - x[j, 2], period)
         inside = dx * dx + dy * dy + dz * dz < H2
         if store_all:
@@ -472,11 +482,19 @@ def _build_neighbour_rows(periodic, x, rows, contiguous, cell_begin, cell_end, o
 def filter_row(periodic, i, x, cand, cand_counts, period, H2, nbr, counts):
     """Row i's neighbour list from its candidate list (a skin's Verlet list): every candidate j within
     H of row i now (the separation as neighbour_row computes it), in the candidates' order.
-    Branch-free stores, as _scan_span's (the last column of ``nbr`` is the spare)."""
+    Branch-free stores, as _scan_span's (the last column of ``nbr`` is the spare); with AVX-512 in
+    compress-stored chunks while a whole chunk fits below the capacity (simd.py)."""
     cap = nbr.shape[1] - 1
     xi, yi, zi = x[i, 0], x[i, 1], x[i, 2]
     count = 0
-    for k in range(cand_counts[i]):
+    m = cand_counts[i]
+    k0 = 0
+    if AVX512 and not periodic:
+        chunk = lanes(x)
+        while k0 < m and count + chunk <= cap:
+            count = append_listed(x, cand, i, k0, min(chunk, m - k0), xi, yi, zi, H2, nbr, count)
+            k0 += chunk
+    for k in range(k0, m):
         j = cand[i, k]
         dx, dy, dz = wrapped(periodic, xi - x[j, 0], yi - x[j, 1], zi - x[j, 2], period)
         inside = dx * dx + dy * dy + dz * dz < H2

@@ -304,3 +304,81 @@ def test_the_counting_scatter_is_a_stable_sort_with_every_bin_start(keys):
     _scatter_by_key(keys, start, perm)
     assert perm.tolist() == np.argsort(keys, kind="stable").tolist()
     assert start.tolist() == np.searchsorted(np.sort(keys), np.arange(nbins + 1)).tolist()
+
+
+def _scalar_list(x, i, candidates, H2):
+    """Row i's list as the scalar loop forms it: the candidates within H2, in their order, each
+    squared distance rounded as that loop rounds it ((dx dx + dy dy) + dz dz in x's precision)."""
+    d = x[i] - x[candidates]
+    r2 = (d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) + d[:, 2] * d[:, 2]
+    return candidates[r2 < H2]
+
+
+def _crowded(dtype, seed=3):
+    """(x, H^2): 412 random particles and a lattice of 288 whose spacing, 2^-6, is exactly H / 4 (ties
+    at the support, which are not neighbours); ~30 neighbours a particle, up to ~60."""
+    rng = np.random.default_rng(seed)
+    lattice = np.stack(np.meshgrid(np.arange(12), np.arange(12), np.arange(2), indexing="ij"), -1).reshape(-1, 3)
+    x = np.concatenate([rng.random((412, 3)) * 0.2, lattice * 2.0 ** -6])
+    return x.astype(dtype), dtype(2.0 ** -8)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("layout", ["C", "F"])
+def test_a_scanned_range_lists_what_the_scalar_loop_lists_also_past_the_capacity(dtype, layout):
+    # (On a CPU with AVX-512 the scan goes through compress-stored chunks, sphcore/simd.py; the CUDA
+    # simulator's lists are column-major, layout F. Either way the lists must be the scalar loop's.)
+    # Given crowded particles and lists of 24 columns and a spare: many rows hold more neighbours
+    from numba import njit
+    from sphcore import grid as grid_module
+    x, H2 = _crowded(dtype)
+    n = x.shape[0]
+    nbr = np.zeros((n, 25), np.int32, order=layout)
+
+    @njit
+    def scan_all(x, H2, nbr, counts):
+        period = np.zeros(3, x.dtype)
+        for i in range(x.shape[0]):
+            lo, hi = (i * 7) % 50, x.shape[0] - (i * 11) % 50  # ranges of every length and start
+            counts[i] = grid_module._scan_span(True, np.int64(i), lo, hi, x, x[i, 0], x[i, 1], x[i, 2], H2,
+                                               period, 0, nbr, 0, nbr.shape[1] - 1)
+
+    counts = np.zeros(n, np.int64)
+    # When every row's range is scanned
+    scan_all(x, H2, nbr, counts)
+    # Then each count is the number within H (counted past the capacity) and the stored columns are
+    # the scalar loop's first ones, in its order
+    assert (counts > 24).any() and (counts <= 24).any()
+    for i in range(n):
+        lo, hi = (i * 7) % 50, n - (i * 11) % 50
+        want = _scalar_list(x, i, np.arange(lo, hi), H2)
+        assert counts[i] == len(want), i
+        kept = min(counts[i], 24)
+        assert np.array_equal(nbr[i, :kept], want[:kept]), i
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_the_filter_keeps_what_the_scalar_loop_keeps_also_past_the_capacity(dtype):
+    # Given candidate lists in no particular order, of every length up to 120 (drawn from each row's
+    # 150 nearest particles, so that half of them or more are neighbours), and lists of 24 columns
+    # and a spare
+    from sphcore import grid as grid_module
+    x, H2 = _crowded(dtype)
+    n = x.shape[0]
+    rng = np.random.default_rng(5)
+    cand = np.zeros((n, 121), np.int32)
+    cand_counts = rng.integers(0, 121, n).astype(np.int32)
+    for i in range(n):
+        nearest = np.argsort(((x - x[i]) ** 2).sum(axis=1))[:150]
+        cand[i, :cand_counts[i]] = rng.choice(nearest, cand_counts[i], replace=False)
+    nbr = np.zeros((n, 25), np.int32)
+    counts = np.zeros(n, np.int32)
+    # When they are filtered
+    grid_module._filter_neighbours(0, x, n, cand, cand_counts, np.zeros(3, dtype), H2, nbr, counts)
+    # Then each count is the number within H and the stored columns are the scalar loop's first ones
+    assert (counts > 24).any() and (counts <= 24).any()
+    for i in range(n):
+        want = _scalar_list(x, i, cand[i, :cand_counts[i]].astype(np.int64), H2)
+        assert counts[i] == len(want), i
+        kept = min(counts[i], 24)
+        assert np.array_equal(nbr[i, :kept], want[:kept]), i
