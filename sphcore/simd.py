@@ -30,6 +30,8 @@ def _compiles_for_avx512() -> bool:
     (NUMBA_CPU_FEATURES, or the host's). LLVM makes AVX-512F depend on FMA, so ``-fma`` turns it off."""
     features = numba.config.CPU_FEATURES
     if not features:
+        if numba.config.CPU_NAME not in (None, "host"):  # another CPU named (NUMBA_CPU_NAME): its features unknown
+            return False
         from numba.core.codegen import get_host_cpu_features
         features = get_host_cpu_features()
     features = features.split(",")
