@@ -25,16 +25,22 @@ SCENE = ROOT / "configs" / "dam_break.toml"
 SPACING = 0.012428930023815439  # the bench's 49,152 particles
 
 
+def stepped_case(steps: int, threads: int):
+    """(scene, Simulation) of the `sph bench --until` DFSPH case after ``steps`` steps on ``threads``."""
+    numba.set_num_threads(threads)
+    scene = load_scene(SCENE, bench._until_overrides(SCENE, SPACING, "dfsph") + ["run.neighbour_skin=-1.0"])
+    sim = Simulation(scene, "f32")
+    for _ in range(steps):
+        sim.step()
+    return scene, sim
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=60)
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args()
-    numba.set_num_threads(args.threads)
-    scene = load_scene(SCENE, bench._until_overrides(SCENE, SPACING, "dfsph") + ["run.neighbour_skin=-1.0"])
-    sim = Simulation(scene, "f32")
-    for _ in range(args.steps):
-        sim.step()
+    scene, sim = stepped_case(args.steps, args.threads)
     e, prm, f = sim.engine, sim.prm_now, sim.dtype.type
     on = {"v": "v"}  # the divergence solve's velocities
     passes = {

@@ -12,20 +12,11 @@ import argparse
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-import numba  # noqa: E402
-
-from launch import bench  # noqa: E402
+from scripts.investigations.dfsph_stage_times import stepped_case  # noqa: E402
 from scripts.investigations.peer_pass_cost import median_ms  # noqa: E402
 from sphcore import grid as grid_module  # noqa: E402
-from sphcore.scene import load_scene  # noqa: E402
-from sphcore.solver import Simulation  # noqa: E402
-
-
-SCENE = ROOT / "configs" / "dam_break.toml"
-SPACING = 0.012428930023815439  # the bench's 49,152 particles
 
 
 def main():
@@ -33,11 +24,7 @@ def main():
     ap.add_argument("--steps", type=int, default=60)
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args()
-    numba.set_num_threads(args.threads)
-    scene = load_scene(SCENE, bench._until_overrides(SCENE, SPACING, "dfsph") + ["run.neighbour_skin=-1.0"])
-    sim = Simulation(scene, "f32")
-    for _ in range(args.steps):
-        sim.step()
+    _, sim = stepped_case(args.steps, args.threads)
     grid, n, state = sim.grid, sim.state.n_owned, sim.state
     print(f"{n} particles after {args.steps} steps, {args.threads} threads, AVX-512 chunks: "
           f"{getattr(grid_module, 'AVX512', False)}; {grid.cand_counts[:n].mean():.1f} candidates and "
