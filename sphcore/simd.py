@@ -59,10 +59,14 @@ def _splat(builder, value, vector_type):
                                   ir.Constant(ir.VectorType(_I32, vector_type.count), [0] * vector_type.count))
 
 
+def _row_start(builder, array, row):
+    """The address (i64) of row ``row`` of a 2D array."""
+    return builder.add(builder.ptrtoint(array.data, _I64), builder.mul(row, builder.extract_value(array.strides, 0)))
+
+
 def _element(builder, array, row, column):
     """The address (i64) of int32 element [row, column] of a C-ordered 2D array."""
-    start = builder.add(builder.ptrtoint(array.data, _I64), builder.mul(row, builder.extract_value(array.strides, 0)))
-    return builder.add(start, builder.mul(column, ir.Constant(_I64, 4)))
+    return builder.add(_row_start(builder, array, row), builder.mul(column, ir.Constant(_I64, 4)))
 
 
 def _append_within(context, builder, x_type, x, j64, active, xi, yi, zi, H2, nbr_type, nbr, row, count):
@@ -106,8 +110,7 @@ def _append_within(context, builder, x_type, x, j64, active, xi, yi, zi, H2, nbr
         before = builder.and_(_splat(builder, mask_bits, vbits), ir.Constant(vbits, [(1 << lane) - 1 for lane in range(L)]))
         vpop = _declare(builder, f"llvm.ctpop.v{L}i{L}", vbits, [vbits])
         column = builder.add(_splat(builder, count, vi64), builder.zext(builder.call(vpop, [before]), vi64))
-        start = builder.add(builder.ptrtoint(na.data, _I64), builder.mul(row, builder.extract_value(na.strides, 0)))
-        at = builder.add(_splat(builder, start, vi64),
+        at = builder.add(_splat(builder, _row_start(builder, na, row), vi64),
                          builder.mul(column, _splat(builder, builder.extract_value(na.strides, 1), vi64)))
         vptr = ir.VectorType(_I32.as_pointer(), L)
         scatter = _declare(builder, f"llvm.masked.scatter.v{L}i32.v{L}p0", ir.VoidType(), [vi32, vptr, _I32, vi1])
