@@ -36,6 +36,16 @@ The value is the surface's coordinate along e (m; y in a scene whose gravity poi
 a depth above the floor. A line without any sample reaching the threshold is dry: NaN (there is no
 surface to place), written as ``nan`` in probes.csv and ``null`` in summary.json.
 
+That highest point jumps to any spray or sheet of water that crosses the line above the water (in a
+3D dam break, to over 1 m where the water is 0.3 m deep: docs/VALIDATION.md, the MARIN case). With
+``gauge = "wire"`` the surface is instead the line's lowest sample plus the line's wetted length, the
+stretches where phi >= threshold (phi linear between samples; ``wetted_length``), which is what a
+resistance or capacitance wire gauge reads: its signal grows with the immersed length of the wire
+(Hughes 1993, "Physical Models and Laboratory Techniques in Coastal Engineering"), so a
+drop on the wire adds its own thickness, not its height. Where the water is one column standing on
+the floor, both gauges read the same surface (to the interpolation at the floor, where phi is about
+the threshold); a bubble or a gap between the floor and the water reads lower with the wire.
+
 **Across peers, bitwise.** Each peer sums its owned rows only. Every particle's contribution is
 rounded to an integer number of quanta (``FRACTION_QUANTUM`` of phi, ``pressure_quantum`` of
 V p W), so the partial sums are int64 and their sum over peers (``PeerHalo.reduce_sums``) is exact
@@ -94,6 +104,20 @@ def kernel_values(kernel: Kernel, r: np.ndarray, H: float, s_w: float) -> np.nda
     return np.where(inside, value, 0.0)
 
 
+def wetted_length(s: np.ndarray, phi: np.ndarray, threshold: float) -> float:
+    """The length (m) of a height probe's line where phi >= threshold, phi linear between neighbouring
+    samples (offsets ``s``, ascending). A gap in the line (its samples inside an obstacle are left out)
+    adds nothing."""
+    ds = np.diff(s)
+    step = ds.min() if ds.size else 0.0
+    a, b = phi[:-1] - threshold, phi[1:] - threshold
+    both = (a >= 0.0) & (b >= 0.0)
+    one = (a >= 0.0) != (b >= 0.0)
+    part = np.where(one, np.maximum(a, b) / np.where(one, np.abs(a - b), 1.0), 0.0)  # the wet side of a crossing
+    joined = ds <= 1.5 * step
+    return float(np.sum(np.where(joined, ds * np.where(both, 1.0, part), 0.0)))
+
+
 def vertical(scene) -> np.ndarray:
     """The unit vector opposite the scene's gravity (the zero vector without gravity)."""
     g = np.array(scene.forces.gravity, dtype=np.float64)
@@ -129,6 +153,7 @@ class Probes:
         self.e = vertical(scene)
         self.thresholds = [p.threshold or (DRY_FRACTION if p.kind == "pressure" else SURFACE_FRACTION)
                            for p in self.items]
+        self.gauges = [p.gauge for p in self.items]
         self.lines = [self._line(scene, model.walls, p.at) if p.kind == "height" else None for p in self.items]
         self.sizes = [2 if p.kind == "pressure" else len(line) for p, line in zip(self.items, self.lines)]
         L = float(np.linalg.norm(grid.ncell * grid.cell.astype(np.float64)))  # the grid's diagonal
@@ -204,8 +229,8 @@ class Probes:
         """Each probe's value (Pa or m; NaN for a dry height line) from the global sums."""
         values = []
         at = 0
-        for point, kind, line, size, threshold in zip(self.points, self.kinds, self.lines, self.sizes,
-                                                      self.thresholds):
+        for point, kind, line, size, threshold, gauge in zip(self.points, self.kinds, self.lines, self.sizes,
+                                                             self.thresholds, self.gauges):
             part = sums[at: at + size]
             at += size
             if kind == "pressure":
@@ -217,10 +242,13 @@ class Probes:
             if not len(wet):
                 values.append(math.nan)
                 continue
-            k = int(wet[-1])
-            s = float(line[k])
-            if k + 1 < len(line):  # the crossing between sample k (wet) and k + 1 (below the threshold)
-                s += float(line[k + 1] - line[k]) * (phi[k] - threshold) / (phi[k] - phi[k + 1])
+            if gauge == "wire":
+                s = float(line[0]) + wetted_length(line, phi, threshold)
+            else:
+                k = int(wet[-1])
+                s = float(line[k])
+                if k + 1 < len(line):  # the crossing between sample k (wet) and k + 1 (below the threshold)
+                    s += float(line[k + 1] - line[k]) * (phi[k] - threshold) / (phi[k] - phi[k + 1])
             base = float(sum((point[d] + self.origin[d]) * self.e[d] for d in range(3)))  # a world height
             values.append(base + s)
         return np.array(values, dtype=np.float64)

@@ -439,6 +439,7 @@ class Output:
 
 
 PROBE_KINDS = ("pressure", "height")
+PROBE_GAUGES = ("highest", "wire")  # a height probe's surface: sphcore/probes.py
 PROBE_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_.-]{0,63}")  # a CSV column and a Rerun entity path part as it is
 
 
@@ -454,6 +455,10 @@ class Probe:
     threshold: float = spec(0.0, "fluid fraction sum_j (m_j/rho_j) W: pressure: dry (reads 0 Pa) below it; height: "
                                  "the surface is where it falls below it (0 = the kind's default: 0.05 for pressure, "
                                  "0.5 for height)", range=(0.0, 1.0), min_exclusive=False)
+    gauge: str = spec("highest", "height: highest: the highest point of the line where the fraction reaches "
+                                 "threshold (spray above the water counts); wire: the line's lowest point plus "
+                                 "its wetted length, as a wire gauge reads (spray adds its thickness, not its "
+                                 "height)", choices=PROBE_GAUGES)
 
 
 OPEN = "creates or removes particles where the run's particle bookkeeping fixes it when the run starts"
@@ -1474,6 +1479,9 @@ def _check_probes(s: Scene):
         seen[probe.name] = i
         if s.dim == 2 and probe.at[2] != 0.0:
             raise SceneError(f"{key}.at = {list(probe.at)!r}: z must be 0 in 2D (the particles lie in z = 0)")
+        if probe.kind == "pressure" and probe.gauge != "highest":
+            raise SceneError(f"{key}.gauge = {probe.gauge!r}: a pressure probe has no gauge; gauge is a height "
+                             "probe's (kind = 'height')")
         if probe.kind == "height" and not any(s.forces.gravity):
             raise SceneError(f"{key}.kind = 'height': needs forces.gravity (the vertical is the direction opposite "
                              f"gravity), but forces.gravity = {list(s.forces.gravity[: s.dim])!r}")

@@ -13,7 +13,7 @@ from nodes.driver import RunPlan
 from sphcore import checkpoint
 from sphcore.choices import Kernel
 from sphcore.physics.kernels import kernel_constants, w
-from sphcore.probes import Probes, kernel_values
+from sphcore.probes import Probes, kernel_values, wetted_length
 from sphcore.scene import SceneError, load_scene
 from sphcore.solver import Simulation
 
@@ -65,6 +65,8 @@ BAD = [
     ('name = "p"\nat = [0.1, 0.1]\nthreshold = 2.0', ["probes[0].threshold = 2.0", "[0, 1]"]),
     ('name = "p"\nat = [0.1, 0.1]\n\n[[probes]]\nname = "p"\nat = [0.2, 0.1]',
      ["probes[1].name = 'p'", "already the name of probes[0]"]),
+    ('name = "h"\nkind = "height"\nat = [0.1, 0.0]\ngauge = "float"', ["probes[0].gauge = 'float'", "'highest', 'wire'"]),
+    ('name = "p"\nat = [0.1, 0.1]\ngauge = "wire"', ["probes[0].gauge = 'wire': a pressure probe has no gauge"]),
 ]
 
 
@@ -197,6 +199,51 @@ def test_a_height_probe_finds_a_flat_surface_within_a_tenth_of_a_spacing(tmp_pat
         fill = rows * 0.02 + lift  # half a spacing above the top row
         h = probes.values(probes.partial_sums(x, m, rho, np.zeros(len(x))))[3]
         assert abs(h - fill) < 0.1 * 0.02, (fill, h)
+
+
+WIRE = PROBES + """
+[[probes]]
+name = "h_wire"
+kind = "height"
+at = [0.1, 0.0]
+gauge = "wire"
+"""
+
+
+@pytest.mark.fast
+def test_the_wetted_length_of_a_line_counts_the_wet_stretches_and_skips_its_gaps():
+    s = np.round(np.arange(11) * 0.1, 12)  # 0, 0.1, ..., 1.0
+    phi = np.array([0.5, 1.0, 1.0, 0.75, 0.25, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
+    # wet from 0 to the crossing at 0.35, and around the sample at 0.7 (0.65 to 0.75)
+    assert wetted_length(s, phi, 0.5) == pytest.approx(0.35 + 0.1)
+    # a line with its samples inside an obstacle left out: the gap between 0.3 and 0.7 adds nothing
+    keep = np.array([0, 1, 2, 3, 7, 8, 9, 10])
+    assert wetted_length(s[keep], np.array([1, 1, 1, 1, 1, 1, 0, 0.0]), 0.5) == pytest.approx(0.3 + 0.15)
+    assert wetted_length(s, np.zeros(11), 0.5) == 0.0 and wetted_length(s[:1], np.ones(1), 0.5) == 0.0
+
+
+@pytest.mark.fast
+def test_a_wire_gauge_reads_the_column_and_adds_only_the_thickness_of_spray_above_it(tmp_path):
+    probes = Probes(Simulation(probe_scene(tmp_path, WIRE, "particles.spacing=0.02"), "f64"))
+    dx, fill = 0.02, 15 * 0.02
+    column = lattice((0.0, 0.0), (0.4, fill), dx)
+    blob = lattice((0.06, 0.48), (0.14, 0.56), dx)  # 4 x 4 particles of spray over the probes' line x = 0.1
+    highest, wire = 3, 4
+
+    def read(*parts):
+        x, m, rho = (np.concatenate(a) for a in zip(*parts))
+        return probes.values(probes.partial_sums(x, m, rho, np.zeros(len(x))))
+
+    # the column alone: both gauges read its surface
+    alone = read(column)
+    assert abs(alone[highest] - fill) < 0.1 * dx and abs(alone[wire] - fill) < 0.1 * dx, alone
+    # the spray alone: the wire reads the line's lowest point (the floor, y = 0) plus the blob's thickness
+    thickness = read(blob)[wire]
+    assert 0.5 * 0.08 < thickness < 0.08 + dx, thickness
+    # both: the highest wet point jumps to the spray's top, the wire adds the spray's thickness only
+    both = read(column, blob)
+    assert abs(both[highest] - 0.56) < 0.5 * dx, both
+    assert abs(both[wire] - (fill + thickness)) < 0.1 * dx, (both, fill, thickness)
 
 
 # -- a run: N peers == one process, a resume ---------------------------------------------------------
