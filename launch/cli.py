@@ -392,12 +392,14 @@ def build_parser() -> argparse.ArgumentParser:
                     "rho0 g (H0 - y) and the fill height, cavity: the lid-driven cavity vs Ghia et al. 1982, "
                     "dam_break_pressure: wall pressure vs Buchner 2002, channel: an inlet's flow developing into "
                     "plane Poiseuille flow before an outlet, circular_couette: a turning cylinder vs A r + B / r, "
-                    "wave_maker: a piston's waves vs linear wave-maker theory), print one line per metric (name "
+                    "wave_maker: a piston's waves vs linear wave-maker theory, dam_break_obstacle: a 3D dam break "
+                    "against a box, four water-height gauges vs MARIN's experiment), print one line per metric (name "
                     "value tolerance PASS|FAIL) and write a plot per case.")
     validate.add_argument("cases", nargs="*", metavar="CASE",
                           help="hydrostatic, hydrostatic_3d, dam_break, dam_break_3d, taylor_green, oscillating_drop, "
                                "poiseuille, couette, floating_box, floating_square, settling_cylinder, "
-                               "hydrostatic_probes, cavity, dam_break_pressure, channel, circular_couette, wave_maker")
+                               "settling_cylinder_closed, hydrostatic_probes, cavity, dam_break_pressure, channel, "
+                               "circular_couette, wave_maker, dam_break_obstacle")
     validate.add_argument("--all", action="store_true", help="every case")
     validate.add_argument("--quick", action="store_true", help="coarser resolution: under ~2 minutes per case")
     validate.add_argument("--out", type=Path, default=Path("runs/validate"), help="folder for the plots")

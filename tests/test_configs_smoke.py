@@ -14,6 +14,7 @@ PROMISED = {
     "dam_break": (30_000, 60_000),       # "About 49,000 particles"
     "dam_break_2d": (2_400, 4_000),      # "~3,200 particles"
     "dam_break_pressure_2d": (2_400, 4_000),  # "~3,200 particles"
+    "dam_break_obstacle": (10_000, 16_700),  # "About 13,000 particles"
     "mesh_obstacle": (11_000, 17_000),   # "~14,000 particles"
     "hydrostatic_2d": (1_900, 3_100),    # "~2,500"
     "obstacle": (8_000, 13_000),         # "~10,400 particles"

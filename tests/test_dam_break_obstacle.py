@@ -1,0 +1,94 @@
+"""sph validate dam_break_obstacle: MARIN's measured water heights (Kleefsman et al. 2005) load as
+copied, the gauges' measures do what their docstring says, and the quick case runs and reports its
+metrics with verdicts that follow the values."""
+import math
+
+import numpy as np
+import pytest
+
+from launch.cli import main
+from launch.validate import (HEIGHT_TOLERANCE, MARIN_DATA, MARIN_END_S, MARIN_GAUGES, MARIN_H4_RETURN_S,
+                             height_measures, load_marin)
+from sphcore.scene import load_scene
+
+from conftest import CONFIGS
+
+
+def test_the_marin_records_load_as_copied():
+    # Given the down-sampled copy (its header cites the paper, the source file and its commit)
+    header = MARIN_DATA.read_text().splitlines()[:15]
+    assert any("Kleefsman" in line and "2005" in line for line in header)
+    assert any("b2dffb32cd56e3eee14e2c6863ac4951ce9f29c8" in line for line in header)
+    # When it loads
+    t, h = load_marin()
+    # Then every row is there, in increasing time, about 50 a second over 0-7.38 s
+    assert len(t) == 370 and np.all(np.diff(t) > 0.015) and np.all(np.diff(t) < 0.025)
+    assert (t[0], t[-1]) == (0.00002, 7.38004)
+    # rows checked by hand against the source (its columns: H3, H2, H1, H4)
+    k = int(np.flatnonzero(t == 4.50004)[0])
+    assert [h[g][k] for g in MARIN_GAUGES] == [0.15267, 0.14460, 0.27047, 0.25967]
+    assert [h[g][0] for g in MARIN_GAUGES] == [0.00040, 0.00053, 0.00027, 0.54667]
+    # and the surge wets the gauges in the order of their distance from the column: H3, H2, H1
+    wet = {g: t[np.argmax(h[g] > 0.02)] for g in ("H1", "H2", "H3")}
+    assert wet["H3"] < wet["H2"] < wet["H1"]
+    # the window of every measure lies inside the record
+    assert t[0] < 0.001 and MARIN_END_S < t[-1]
+
+
+def test_the_gauge_measures_of_a_made_up_record():
+    t = np.linspace(0.0, 7.0, 701)
+    # a triangle 0.3 m high at 2 s, from 1 to 3 s; dry (nan) elsewhere
+    h = np.where(np.abs(t - 2.0) < 1.0, 0.3 * (1.0 - np.abs(t - 2.0)), np.nan)
+    peak, when, impulse, arrival = height_measures(t, h, "H2")
+    assert (peak, when) == (pytest.approx(0.3), pytest.approx(2.0))
+    assert impulse == pytest.approx(0.3)  # the triangle's area; the dry samples read 0
+    assert arrival == pytest.approx(1.07, abs=0.011)  # the first sample above 0.02 m
+    # past the window's end nothing counts: the same triangle at 6.5 s is half outside
+    late = np.where(np.abs(t - 6.5) < 1.0, 0.3 * (1.0 - np.abs(t - 6.5)), 0.0)
+    peak, when, impulse, _ = height_measures(t, late, "H1")
+    assert when == pytest.approx(MARIN_END_S) and peak == pytest.approx(0.15)
+    assert impulse == pytest.approx(0.5 * 0.5 * 0.15)  # the rising half-metre from 5.5 to 6 s only
+
+
+def test_the_reservoir_gauge_peaks_on_the_returning_wave():
+    t = np.linspace(0.0, 6.0, 601)
+    # the still column at 0.55 m drains to 0.1 m and a wave comes back to 0.4 m at 4 s
+    h = np.interp(t, [0.0, MARIN_H4_RETURN_S, 4.0, 6.0], [0.55, 0.1, 0.4, 0.2])
+    peak, when, _, _ = height_measures(t, h, "H4")
+    assert (peak, when) == (pytest.approx(0.4), pytest.approx(4.0))
+    # a downstream gauge's peak is over the whole window
+    assert height_measures(t, h, "H3")[:2] == (pytest.approx(0.55), pytest.approx(0.0))
+
+
+def test_the_scene_is_the_experiment():
+    scene = load_scene(CONFIGS / "dam_break_obstacle.toml")
+    block = scene.fluid.blocks[0]
+    assert list(block.min) == [1.992, 0.0, 0.0] and list(block.max) == [3.22, 0.55, 1.0]
+    (box,) = scene.obstacles
+    lo = np.subtract(box.center, np.multiply(box.size, 0.5))
+    hi = np.add(box.center, np.multiply(box.size, 0.5))
+    assert np.allclose(lo, [0.6635, 0.0, 0.2985]) and np.allclose(hi, [0.8245, 0.161, 0.7015])
+    # the four gauges read as wire gauges, and their lines again by the highest wet point
+    assert [p.name for p in scene.probes] == [*MARIN_GAUGES, *(f"{g}_highest" for g in MARIN_GAUGES)]
+    lines = [(0.496, 0.0, 0.5), (0.992, 0.0, 0.5), (1.488, 0.0, 0.5), (2.638, 0.0, 0.5)]
+    assert [tuple(p.at) for p in scene.probes] == lines + lines
+    assert [p.gauge for p in scene.probes] == ["wire"] * 4 + ["highest"] * 4
+    assert all(p.kind == "height" for p in scene.probes)
+
+
+@pytest.mark.slow  # a 3D validation case (about four minutes on 2 cores): the slow tier
+def test_the_quick_case_runs_and_reports_honest_verdicts(tmp_path, capsys):
+    # When the quick case runs (H0 / 15, about 13,000 particles, 6 s of the flow)
+    rc = main(["validate", "dam_break_obstacle", "--quick", "--out", str(tmp_path)])
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("dam_break_obstacle.")]
+    # Then it prints the peak and the impulse of every gauge
+    names = [line.split()[0] for line in lines]
+    assert names == [f"dam_break_obstacle.{g}_{m}_relative" for g in MARIN_GAUGES for m in ("peak", "impulse")], names
+    values = [float(line.split()[1]) for line in lines]
+    verdicts = [line.split()[3] for line in lines]
+    # every value is a finite relative error and each verdict is the value against the 15 % target
+    assert all(math.isfinite(v) and v >= 0.0 for v in values), lines
+    assert all(float(line.split()[2]) == HEIGHT_TOLERANCE for line in lines)
+    assert verdicts == ["PASS" if v <= HEIGHT_TOLERANCE else "FAIL" for v in values], lines
+    assert rc == (0 if all(v == "PASS" for v in verdicts) else 1)
+    assert (tmp_path / "dam_break_obstacle.png").stat().st_size > 10_000
