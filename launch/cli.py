@@ -401,7 +401,8 @@ def build_parser() -> argparse.ArgumentParser:
                                "settling_cylinder_closed, hydrostatic_probes, cavity, dam_break_pressure, channel, "
                                "circular_couette, wave_maker, dam_break_obstacle")
     validate.add_argument("--all", action="store_true", help="every case")
-    validate.add_argument("--quick", action="store_true", help="coarser resolution: under ~2 minutes per case")
+    validate.add_argument("--quick", action="store_true", help="coarser resolution: a few minutes per case at most on 2 cores (the 3D "
+                               "dam_break_obstacle about 4)")
     validate.add_argument("--out", type=Path, default=Path("runs/validate"), help="folder for the plots")
     validate.add_argument("--backend", choices=("cpu", "cuda"), default="cpu",
                           help="run the cases on the CPU or on a GPU (float64 either way)")

@@ -13,8 +13,9 @@ case, exit code 1 if any metric fails.
                                                  and spread (run_orders)
 
 Each case is a function of (quick, out folder) returning its metrics; ``--quick`` uses a coarser
-resolution so each case stays under about two minutes on 2 cores. Tolerances are the issue's
-targets; a metric that misses its tolerance is reported FAIL, never loosened to pass.
+resolution so each case takes a few minutes at most on 2 cores (the 3D dam_break_obstacle about 4).
+Tolerances are the issue's targets; a metric that misses its tolerance is reported FAIL, never
+loosened to pass.
 """
 from __future__ import annotations
 
