@@ -1,4 +1,5 @@
 """Shared helpers for the test suite."""
+import math
 import os
 from pathlib import Path
 
@@ -76,3 +77,17 @@ def one_process_and_two_peers(sc, steps=40):
     for key in ("x", "v", "rho"):
         assert np.array_equal(ref[key], got[key]), key
     return one, cluster
+
+
+def validation_lines(out: str, case: str, tolerance: float, rc: int) -> list[str]:
+    """The metric lines ``sph validate CASE`` printed, after checking that each is honest: a finite,
+    non-negative relative error, the case's tolerance, and PASS exactly where the value is within it,
+    and that the exit code is 1 exactly when one fails."""
+    lines = [line for line in out.splitlines() if line.startswith(f"{case}.")]
+    values = [float(line.split()[1]) for line in lines]
+    verdicts = [line.split()[3] for line in lines]
+    assert lines and all(math.isfinite(v) and v >= 0.0 for v in values), lines
+    assert all(float(line.split()[2]) == tolerance for line in lines), lines
+    assert verdicts == ["PASS" if v <= tolerance else "FAIL" for v in values], lines
+    assert rc == (0 if all(v == "PASS" for v in verdicts) else 1)
+    return lines
