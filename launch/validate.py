@@ -1200,14 +1200,19 @@ def load_marin(path: Path = MARIN_DATA) -> tuple[np.ndarray, dict[str, np.ndarra
     return table[:, 0], {g: table[:, 1 + k] for k, g in enumerate(MARIN_GAUGES)}
 
 
+def highest(gauge: str) -> str:
+    """The probe that reads ``gauge``'s line by its highest wet point (the raw figure, which spray sets)."""
+    return f"{gauge}_highest"
+
+
 def height_measures(t, h, gauge: str) -> tuple[float, float, float, float]:
     """(peak height, its time, impulse: the integral of h dt, arrival: the first time h exceeds
     0.02 m) of one gauge's record over [0, MARIN_END_S] (the reservoir's H4: its peak after
     MARIN_H4_RETURN_S). A dry gauge (nan: no water on its line) reads 0."""
     t, h = np.asarray(t, dtype=float), np.nan_to_num(np.asarray(h, dtype=float), nan=0.0)
-    lo = MARIN_H4_RETURN_S if gauge == "H4" else 0.0
-    peak, when, _ = peak_and_impulse(t, h, lo, MARIN_END_S)
-    impulse = peak_and_impulse(t, h, 0.0, MARIN_END_S)[2]
+    peak, when, impulse = peak_and_impulse(t, h, 0.0, MARIN_END_S)
+    if gauge == "H4":
+        peak, when, _ = peak_and_impulse(t, h, MARIN_H4_RETURN_S, MARIN_END_S)
     wet = np.flatnonzero(h > 0.02)
     return peak, when, impulse, float(t[wet[0]]) if wet.size else float("nan")
 
@@ -1217,10 +1222,11 @@ def dam_break_obstacle(quick: bool, out: Path, backend: str = "cpu", opts: CaseO
     four gauges against the measured records over the first MARIN_END_S, each gauge's peak (H4: the
     returning wave's) and impulse (the integral of h dt), the arrival time in the note."""
     opts = opts or CaseOptions(backend)
-    H0 = 0.55
-    dx = opts.dx or (None if quick else H0 / 25)  # quick: the scene file's own H0 / 15, so that sph run gives its bits
-    spacing = () if dx is None else (f"particles.spacing={dx!r}",)
-    scene = load_scene(CONFIGS / "dam_break_obstacle.toml", [*spacing, *opts.overrides])
+    config = CONFIGS / "dam_break_obstacle.toml"
+    scene = load_scene(config, list(opts.overrides))  # quick: the file's own H0 / 15, so that sph run gives its bits
+    H0 = scene.fluid.blocks[0].max[1] - scene.fluid.blocks[0].min[1]
+    if opts.dx or not quick:
+        scene = load_scene(config, [f"particles.spacing={opts.dx or H0 / 25!r}", *opts.overrides])
     dx = scene.particles.spacing
     t_exp, h_exp = load_marin()
     sim = Simulation(scene, opts.precision, opts.backend)
@@ -1238,7 +1244,7 @@ def dam_break_obstacle(quick: bool, out: Path, backend: str = "cpu", opts: CaseO
         peak_e, when_e, impulse_e, arrival_e = height_measures(t_exp, h_exp[gauge], gauge)
         x = scene.probes[k].at[0]
         which = "the returning wave's peak" if gauge == "H4" else "peak"
-        top = f"{gauge}_highest"  # the same line read by its highest wet point, which spray sets
+        top = highest(gauge)
         raw = ""
         if top in names:
             found[top] = rec[:, 1 + names.index(top)]
@@ -1262,8 +1268,8 @@ def dam_break_obstacle(quick: bool, out: Path, backend: str = "cpu", opts: CaseO
     for ax, gauge in zip(axes.ravel(), MARIN_GAUGES):
         k = names.index(gauge)
         ax.plot(t_exp, h_exp[gauge], "k-", lw=1.2, label="MARIN (Kleefsman et al. 2005)")
-        if f"{gauge}_highest" in found:
-            ax.plot(t_sim, np.nan_to_num(found[f"{gauge}_highest"], nan=0.0), "-", color="0.6", lw=0.6,
+        if highest(gauge) in found:
+            ax.plot(t_sim, np.nan_to_num(found[highest(gauge)], nan=0.0), "-", color="0.6", lw=0.6,
                     label="sphfluid, the line's highest wet point (raw: spray sets it)")
         ax.plot(t_sim, np.nan_to_num(found[gauge], nan=0.0), "-", color="C3", lw=1.0,
                 label=f"sphfluid, H0 / {H0 / dx:.0f} ({sim.n_particles:,} particles), a wire gauge")
