@@ -108,6 +108,12 @@ def test_endpoints_deliver_by_source_and_tag_and_drop_foreign_or_malformed(pair)
     assert b.dropped == 2
     assert a.bytes_sent["positions"] > x.nbytes
     b.send(0, (5, "fields"), {"x": x[:3]})  # a message under another tag: the report names it
+    deadline = time.time() + 5  # it must have arrived before the wait starts, or the silence is shorter
+    while time.time() < deadline:
+        with a._cv:
+            if "5 'fields'" in a._mail.account(1):
+                break
+        time.sleep(0.01)
     with pytest.raises(PeerTimeout, match=r"peer 0, step 5: no 'positions' message from peer 1 after 3 s: "
                                           r"peer 1 not answering for 3\.\d s \(still connected") as timeout:
         a.wait(1, (5, "positions"))  # the foreign run's message never reached us
