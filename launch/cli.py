@@ -393,7 +393,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "dam_break_pressure: wall pressure vs Buchner 2002, channel: an inlet's flow developing into "
                     "plane Poiseuille flow before an outlet, circular_couette: a turning cylinder vs A r + B / r, "
                     "wave_maker: a piston's waves vs linear wave-maker theory, dam_break_obstacle: a 3D dam break "
-                    "against a box, four water-height gauges vs MARIN's experiment), print one line per metric (name "
+                    "against a box, four water-height gauges and four pressure sensors vs MARIN's experiment), print one line per metric (name "
                     "value tolerance PASS|FAIL) and write a plot per case.")
     validate.add_argument("cases", nargs="*", metavar="CASE",
                           help="hydrostatic, hydrostatic_3d, dam_break, dam_break_3d, taylor_green, oscillating_drop, "

@@ -1188,6 +1188,39 @@ MARIN_END_S = 6.0
 MARIN_H4_RETURN_S = 2.56
 
 
+# The pressure on the box's front face, P1-P4 (launch/data/marin_2005_pressure.csv, its header: the
+# source, the rows copied): peak and impulse over the first impact and the second after it, a window
+# fixed from the record alone: from before the surge reaches P1 (0.393 s) over the impact peaks
+# (0.415-0.459 s) and the decay to the plateau, to the end of the rows copied. Both signals are
+# filtered by the Buchner case's moving average (PRESSURE_FILTER_S, 10 ms) for the peak: the record
+# has the sensors' noise (+-50-90 Pa at rest, spikes of 1-2 kPa at the peak), the simulation the
+# fluid's acoustic noise; the impulse is of the signals as sampled
+MARIN_PRESSURE_DATA = Path(__file__).resolve().parent / "data" / "marin_2005_pressure.csv"
+MARIN_SENSORS = ("P1", "P2", "P3", "P4")
+MARIN_PRESSURE_WINDOW = (0.35, 1.40)
+
+
+def load_marin_pressure(path: Path = MARIN_PRESSURE_DATA) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """The experiment's pressure record: (t in s, {sensor: pressure in Pa}), in increasing t."""
+    lines = [line for line in Path(path).read_text().splitlines() if line.strip() and not line.startswith("#")]
+    header = "t_s," + ",".join(f"{p}_Pa" for p in MARIN_SENSORS)
+    if lines[0] != header:
+        raise ValueError(f"{path}: header {lines[0]!r}, expected {header!r}")
+    table = np.array([[float(v) for v in line.split(",")] for line in lines[1:]])
+    if not np.all(np.diff(table[:, 0]) > 0.0):
+        raise ValueError(f"{path}: the times do not increase")
+    return table[:, 0], {p: table[:, 1 + k] for k, p in enumerate(MARIN_SENSORS)}
+
+
+def pressure_measures(t, p) -> tuple[float, float, float, float, float]:
+    """(peak of the PRESSURE_FILTER_S moving average, its time, raw peak, its time, impulse: the
+    integral of p dt) of one sensor's record over MARIN_PRESSURE_WINDOW."""
+    lo, hi = MARIN_PRESSURE_WINDOW
+    peak, when, _ = peak_and_impulse(t, moving_average(t, p, PRESSURE_FILTER_S), lo, hi)
+    raw, raw_when, impulse = peak_and_impulse(t, p, lo, hi)
+    return peak, when, raw, raw_when, impulse
+
+
 def load_marin(path: Path = MARIN_DATA) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """The experiment's record: (t in s, {gauge: height in m}), in increasing t."""
     lines = [line for line in Path(path).read_text().splitlines() if line.strip() and not line.startswith("#")]
@@ -1260,7 +1293,24 @@ def dam_break_obstacle(quick: bool, out: Path, backend: str = "cpu", opts: CaseO
                               + ("" if gauge == "H4" else f"; wet (h > 0.02 m) from {arrival:.3f} s vs {arrival_e:.3f} s")
                               + (f"; {sim.n_particles} particles, H0 / {H0 / dx:.0f}" if gauge == "H1" else ""),
                               quantity=impulse, reference=impulse_e))
-    opts.stats.update(heights_t=t_sim.tolist(), heights={g: h.tolist() for g, h in found.items()})
+    t_pe, p_exp = load_marin_pressure()
+    lo, hi = MARIN_PRESSURE_WINDOW
+    for sensor in MARIN_SENSORS:
+        k = names.index(sensor)
+        found[sensor] = rec[:, 1 + k]
+        peak, when, raw, raw_when, impulse = pressure_measures(t_sim, found[sensor])
+        peak_e, when_e, raw_e, raw_when_e, impulse_e = pressure_measures(t_pe, p_exp[sensor])
+        y = scene.probes[k].at[1]
+        metrics.append(Metric(f"dam_break_obstacle.{sensor}_peak_relative", abs(peak / peak_e - 1.0), HEIGHT_TOLERANCE,
+                              f"{1e3 * PRESSURE_FILTER_S:g} ms moving average {peak:.0f} Pa at {when:.3f} s vs MARIN "
+                              f"{peak_e:.0f} Pa at {when_e:.3f} s; raw {raw:.0f} Pa at {raw_when:.3f} s vs "
+                              f"{raw_e:.0f} Pa at {raw_when_e:.3f} s; the box's face, {y:g} m up",
+                              quantity=peak, reference=peak_e))
+        metrics.append(Metric(f"dam_break_obstacle.{sensor}_impulse_relative", abs(impulse / impulse_e - 1.0),
+                              HEIGHT_TOLERANCE,
+                              f"integral of p dt over {lo:g}-{hi:g} s {impulse:.1f} vs MARIN {impulse_e:.1f} Pa s",
+                              quantity=impulse, reference=impulse_e))
+    opts.stats.update(probes_t=t_sim.tolist(), probes={g: h.tolist() for g, h in found.items()})
     if not opts.plot:
         return metrics
     plt = _plot()
@@ -1283,6 +1333,26 @@ def dam_break_obstacle(quick: bool, out: Path, backend: str = "cpu", opts: CaseO
     fig.suptitle("3D dam break against a box (SPHERIC test 2): water heights")
     fig.tight_layout()
     fig.savefig(out / "dam_break_obstacle.png", dpi=100)
+    plt.close(fig)
+    fig, axes = plt.subplots(2, 2, figsize=(12, 7), sharex=True)
+    for ax, sensor in zip(axes.ravel(), MARIN_SENSORS):
+        k = names.index(sensor)
+        ax.axvspan(lo, hi, color="0.93", label="window (metrics)")
+        ax.plot(t_pe, p_exp[sensor], "-", color="0.6", lw=0.5, label="MARIN (Kleefsman et al. 2005), 1 kHz")
+        ax.plot(t_pe, moving_average(t_pe, p_exp[sensor], PRESSURE_FILTER_S), "k-", lw=1.2,
+                label=f"MARIN, {1e3 * PRESSURE_FILTER_S:g} ms moving average")
+        ax.plot(t_sim, found[sensor], "-", color="C0", lw=0.5, alpha=0.6, label="sphfluid, raw probe")
+        ax.plot(t_sim, moving_average(t_sim, found[sensor], PRESSURE_FILTER_S), "-", color="C3", lw=1.2,
+                label=f"sphfluid, H0 / {H0 / dx:.0f}, {1e3 * PRESSURE_FILTER_S:g} ms moving average")
+        ax.set_xlim(0.25, 1.5)
+        ax.set_title(f"{sensor}, {scene.probes[k].at[1]:g} m up the box's face")
+        ax.set_ylabel("pressure (Pa)")
+        ax.legend(fontsize=7, loc="upper right")
+    for ax in axes[1]:
+        ax.set_xlabel("t (s)")
+    fig.suptitle("3D dam break against a box (SPHERIC test 2): pressure on the box's face")
+    fig.tight_layout()
+    fig.savefig(out / "dam_break_obstacle_pressure.png", dpi=100)
     plt.close(fig)
     return metrics
 

@@ -1,12 +1,13 @@
-"""sph validate dam_break_obstacle: MARIN's measured water heights (Kleefsman et al. 2005) load as
-copied, the gauges' measures do what their docstring says, and the quick case runs and reports its
-metrics with verdicts that follow the values."""
+"""sph validate dam_break_obstacle: MARIN's measured water heights and pressures (Kleefsman et al.
+2005) load as copied, the gauges' and sensors' measures do what their docstrings say, and the quick
+case runs and reports its metrics with verdicts that follow the values."""
 import numpy as np
 import pytest
 
 from launch.cli import main
 from launch.validate import (HEIGHT_TOLERANCE, MARIN_DATA, MARIN_END_S, MARIN_GAUGES, MARIN_H4_RETURN_S,
-                             height_measures, load_marin)
+                             MARIN_PRESSURE_DATA, MARIN_PRESSURE_WINDOW, MARIN_SENSORS, PRESSURE_FILTER_S,
+                             height_measures, load_marin, load_marin_pressure, pressure_measures)
 from sphcore.scene import load_scene
 
 from conftest import CONFIGS, validation_lines
@@ -31,6 +32,39 @@ def test_the_marin_records_load_as_copied():
     assert wet["H3"] < wet["H2"] < wet["H1"]
     # the window of every measure lies inside the record
     assert t[0] < 0.001 and MARIN_END_S < t[-1]
+
+
+def test_the_marin_pressure_records_load_as_copied():
+    # Given the copied rows (the header cites the paper, the source file and its commit)
+    header = MARIN_PRESSURE_DATA.read_text().splitlines()[:16]
+    assert any("Kleefsman" in line and "2005" in line for line in header)
+    assert any("665d90114a1720051144133a3a0acc2a4aaa7b2f" in line for line in header)
+    # When they load
+    t, p = load_marin_pressure()
+    # Then every row is there: ~1 kHz from 0.30 to 1.40 s, covering the window of the measures
+    assert len(t) == 1100 and np.all(np.diff(t) > 0.00097) and np.all(np.diff(t) < 0.00102)
+    assert (t[0], t[-1]) == (0.3000232199500781, 1.3990209742698942)
+    assert t[0] < MARIN_PRESSURE_WINDOW[0] and MARIN_PRESSURE_WINDOW[1] - t[-1] < 0.0011
+    # two rows checked by hand against the source: the first, and P1's raw peak (11,239 Pa at 0.415 s)
+    assert [p[s][0] for s in MARIN_SENSORS] == [-24.8, -5.066666666666666, -50.06666666666667, -22.533333333333335]
+    k = int(np.argmax(p["P1"]))
+    assert t[k] == pytest.approx(0.415, abs=0.001) and p["P1"][k] == pytest.approx(11239, abs=1)
+    # and the surge reaches the sensors from the floor up, P1 to P4
+    wet = [t[np.argmax(p[s] > 500.0)] for s in MARIN_SENSORS]
+    assert wet == sorted(wet) and 0.39 < wet[0] < wet[-1] < 0.44
+
+
+def test_the_pressure_measures_of_a_made_up_record():
+    t = np.arange(0.3, 1.5, 0.001)
+    # a plateau of 3 kPa from 0.5 s with a 1 ms spike of 20 kPa at 0.6 s: the filter takes the spike
+    # down to its 10 ms mean, the raw peak keeps it
+    p = np.where(t >= 0.5, 3000.0, 0.0) + np.where(np.abs(t - 0.6) < 0.0005, 17000.0, 0.0)
+    peak, when, raw, raw_when, impulse = pressure_measures(t, p)
+    assert raw == pytest.approx(20000.0) and raw_when == pytest.approx(0.6, abs=0.001)
+    assert peak == pytest.approx(3000.0 + 17000.0 * 0.001 / PRESSURE_FILTER_S, rel=0.05)
+    assert when == pytest.approx(0.6, abs=0.006)
+    lo, hi = MARIN_PRESSURE_WINDOW
+    assert impulse == pytest.approx(3000.0 * (hi - 0.5) + 17000.0 * 0.001, rel=0.01)  # over the window only
 
 
 def test_the_gauge_measures_of_a_made_up_record():
@@ -67,11 +101,16 @@ def test_the_scene_is_the_experiment():
     hi = np.add(box.center, np.multiply(box.size, 0.5))
     assert np.allclose(lo, [0.6635, 0.0, 0.2985]) and np.allclose(hi, [0.8245, 0.161, 0.7015])
     # the four gauges read as wire gauges, and their lines again by the highest wet point
-    assert [p.name for p in scene.probes] == [*MARIN_GAUGES, *(f"{g}_highest" for g in MARIN_GAUGES)]
+    gauges, sensors = scene.probes[:8], scene.probes[8:]
+    assert [p.name for p in gauges] == [*MARIN_GAUGES, *(f"{g}_highest" for g in MARIN_GAUGES)]
     lines = [(0.496, 0.0, 0.5), (0.992, 0.0, 0.5), (1.488, 0.0, 0.5), (2.638, 0.0, 0.5)]
-    assert [tuple(p.at) for p in scene.probes] == lines + lines
-    assert [p.gauge for p in scene.probes] == ["wire"] * 4 + ["highest"] * 4
-    assert all(p.kind == "height" for p in scene.probes)
+    assert [tuple(p.at) for p in gauges] == lines + lines
+    assert [p.gauge for p in gauges] == ["wire"] * 4 + ["highest"] * 4
+    assert all(p.kind == "height" for p in gauges)
+    # and the four pressure sensors on the box's face, from the floor up
+    assert [p.name for p in sensors] == list(MARIN_SENSORS) and all(p.kind == "pressure" for p in sensors)
+    assert [tuple(p.at) for p in sensors] == [(0.8245, y, 0.471) for y in (0.021, 0.061, 0.101, 0.141)]
+    assert all(p.at[0] == hi[0] for p in sensors)  # on the face the water strikes
 
 
 @pytest.mark.slow  # a 3D validation case (about four minutes on 2 cores): the slow tier
@@ -83,5 +122,7 @@ def test_the_quick_case_runs_and_reports_honest_verdicts(tmp_path, capsys):
     lines = validation_lines(capsys.readouterr().out, "dam_break_obstacle", HEIGHT_TOLERANCE, rc)
     # and it prints the peak and the impulse of every gauge
     names = [line.split()[0] for line in lines]
-    assert names == [f"dam_break_obstacle.{g}_{m}_relative" for g in MARIN_GAUGES for m in ("peak", "impulse")], names
+    assert names == [f"dam_break_obstacle.{g}_{m}_relative" for g in (*MARIN_GAUGES, *MARIN_SENSORS)
+                     for m in ("peak", "impulse")], names
     assert (tmp_path / "dam_break_obstacle.png").stat().st_size > 10_000
+    assert (tmp_path / "dam_break_obstacle_pressure.png").stat().st_size > 10_000
