@@ -67,6 +67,28 @@ def test_rate_is_the_time_derivative_of_the_summation_density():
     assert np.max(np.abs(fd)[full & near_wall]) > 1e3  # the walls' share dominates there
 
 
+def test_the_carried_density_never_falls_below_the_particles_own_kernel_share():
+    # Given a tank run with continuity density, one particle's carried density near zero (spray
+    # integrates its density down: docs/VALIDATION.md, the MARIN section) and every particle moving
+    # away from it (a divergent flow: D rho / Dt < 0 there)
+    sim = Simulation(scene("hydrostatic_2d", "particles.spacing=0.05", "sph.delta=0", *CONTINUITY), "f64")
+    sim._neighbours()
+    sim.engine.run(stages.DENSITY, prm=sim.prm, dt_prev=sim.dtype.type(0.0), commit=True)  # starts at rho0
+    s = sim.state
+    n = s.n_owned
+    i = int(np.argmin(np.linalg.norm(s.x[:n, :2] - [0.25, 0.2], axis=1)))  # inside the tank
+    s.extra["density"][i] = 1.0  # kg/m^3
+    s.v[:n] = 50.0 * (s.x[:n] - s.x[i])
+    # When the density stage advances the carried density over a step
+    sim.engine.run(stages.DENSITY, prm=sim.prm, dt_prev=sim.dtype.type(1e-3), commit=True)
+    # Then it stops at the particle's own kernel share m_i W(0), the least density a kernel sum gives
+    # (without the floor: 1 + 1e-3 D rho / Dt, below zero), and no particle is below its own
+    floor = s.m[:n] * sim.prm.w0
+    assert s.extra["density"][i] == floor[i] and s.rho[i] == floor[i]
+    assert 20.0 < floor[i] < 500.0
+    assert np.all(s.extra["density"][:n] >= floor)
+
+
 def _column(correction):
     """max |delta-SPH drho| of a tank at rest whose carried density follows the hydrostatic profile
     of the linear EOS (dp/dy = -rho g, p = c0^2 (rho - rho0): rho0 exp(g (H - y) / c0^2)), with or

@@ -35,6 +35,14 @@ their mass, at rest density. Not from the kernel sum: at a free surface the sum 
 the diffusion then drained that deficit into the column for seconds (a tank settled 1.7 % of
 rho0 g H below the hydrostatic line).
 
+A floor: the carried density never falls below m_i W(0), the particle's own share of its kernel sum
+(the least density the summation could give it; density.py). The rate above does not shrink with
+rho_i, so a particle thrown off as spray, its few neighbours moving apart, integrates its density
+towards zero and past it (0.02 rho0 in MARIN's 3D dam break at H0 / 15 by t = 0.9 s); the diffusion
+term's m_j / rho_j of such a neighbour then grew without bound, and one step took a neighbour from
+0.09 rho0 to 212 rho0 (docs/VALIDATION.md, the MARIN section). Spray is below rest density, at
+p = 0 with the clamp, with or without the floor; the floor only keeps its volume finite.
+
 Time integration: a symplectic pair with the velocity, like x. Step n computes the pressure from
 rho_n and kicks v; x moves with v_{n+1}; the next step's density pass advances the carried density
 with that same v_{n+1} at x_{n+1}: rho_{n+1} = rho_n + dt_n D rho/Dt (``density_row``, dt_prev).

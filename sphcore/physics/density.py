@@ -79,7 +79,11 @@ def density_row(kernel, eos, periodic, neighbours, pair_gradients, continuity, p
                 wx, wy, wz = wall_density_gradient(kernel, prm, wall_kind, wall_data, wall_tables, x, i, r, theta)
                 rate += wx * v[i, 0] + wy * v[i, 1] + wz * v[i, 2]
                 rate -= moving_wall_rate(kernel, prm, wall_kind, wall_data, wall_tables, wall_motion, x, i, r, theta)
-            rho_i = r + dt_prev * rate
+            # never below the particle's own share of its kernel sum, m_i W(0): the least summation
+            # density a particle can have. In a spray the continuity equation (its rate does not
+            # shrink with rho_i) drives a lone particle's density towards zero and past it, and the
+            # diffusion's m_j / rho_j of such a neighbour then grows without bound (continuity.py)
+            rho_i = max(r + dt_prev * rate, m[i] * prm.w0)
             if commit:
                 rho_c[i] = rho_i
     rho[i] = rho_i
