@@ -1200,16 +1200,22 @@ MARIN_SENSORS = ("P1", "P2", "P3", "P4")
 MARIN_PRESSURE_WINDOW = (0.35, 1.40)
 
 
-def load_marin_pressure(path: Path = MARIN_PRESSURE_DATA) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """The experiment's pressure record: (t in s, {sensor: pressure in Pa}), in increasing t."""
+def load_record(path: Path, names, unit: str) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """A measured record as launch/data keeps it (``#`` comment lines, then the header
+    ``t_s,<name>_<unit>,...`` and one row per sample): (t in s, {name: column}), in increasing t."""
     lines = [line for line in Path(path).read_text().splitlines() if line.strip() and not line.startswith("#")]
-    header = "t_s," + ",".join(f"{p}_Pa" for p in MARIN_SENSORS)
+    header = "t_s," + ",".join(f"{name}_{unit}" for name in names)
     if lines[0] != header:
         raise ValueError(f"{path}: header {lines[0]!r}, expected {header!r}")
     table = np.array([[float(v) for v in line.split(",")] for line in lines[1:]])
     if not np.all(np.diff(table[:, 0]) > 0.0):
         raise ValueError(f"{path}: the times do not increase")
-    return table[:, 0], {p: table[:, 1 + k] for k, p in enumerate(MARIN_SENSORS)}
+    return table[:, 0], {name: table[:, 1 + k] for k, name in enumerate(names)}
+
+
+def load_marin_pressure(path: Path = MARIN_PRESSURE_DATA) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """The experiment's pressure record: (t in s, {sensor: pressure in Pa}), in increasing t."""
+    return load_record(path, MARIN_SENSORS, "Pa")
 
 
 def pressure_measures(t, p) -> tuple[float, float, float, float, float]:
@@ -1223,14 +1229,7 @@ def pressure_measures(t, p) -> tuple[float, float, float, float, float]:
 
 def load_marin(path: Path = MARIN_DATA) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """The experiment's record: (t in s, {gauge: height in m}), in increasing t."""
-    lines = [line for line in Path(path).read_text().splitlines() if line.strip() and not line.startswith("#")]
-    header = "t_s," + ",".join(f"{g}_m" for g in MARIN_GAUGES)
-    if lines[0] != header:
-        raise ValueError(f"{path}: header {lines[0]!r}, expected {header!r}")
-    table = np.array([[float(v) for v in line.split(",")] for line in lines[1:]])
-    if not np.all(np.diff(table[:, 0]) > 0.0):
-        raise ValueError(f"{path}: the times do not increase")
-    return table[:, 0], {g: table[:, 1 + k] for k, g in enumerate(MARIN_GAUGES)}
+    return load_record(path, MARIN_GAUGES, "m")
 
 
 def highest(gauge: str) -> str:
@@ -1328,12 +1327,7 @@ def dam_break_obstacle(quick: bool, out: Path, backend: str = "cpu", opts: CaseO
         ax.set_title(f"{gauge}, x = {scene.probes[k].at[0]:g} m")
         ax.set_ylabel("water height (m)")
         ax.legend(fontsize=8, loc="upper right")
-    for ax in axes[1]:
-        ax.set_xlabel("t (s)")
-    fig.suptitle("3D dam break against a box (SPHERIC test 2): water heights")
-    fig.tight_layout()
-    fig.savefig(out / "dam_break_obstacle.png", dpi=100)
-    plt.close(fig)
+    _save_panels(plt, fig, axes, "water heights", out / "dam_break_obstacle.png")
     fig, axes = plt.subplots(2, 2, figsize=(12, 7), sharex=True)
     for ax, sensor in zip(axes.ravel(), MARIN_SENSORS):
         k = names.index(sensor)
@@ -1348,13 +1342,18 @@ def dam_break_obstacle(quick: bool, out: Path, backend: str = "cpu", opts: CaseO
         ax.set_title(f"{sensor}, {scene.probes[k].at[1]:g} m up the box's face")
         ax.set_ylabel("pressure (Pa)")
         ax.legend(fontsize=7, loc="upper right")
+    _save_panels(plt, fig, axes, "pressure on the box's face", out / "dam_break_obstacle_pressure.png")
+    return metrics
+
+
+def _save_panels(plt, fig, axes, what: str, path: Path):
+    """Label the time axes of a MARIN figure's 2 x 2 panels, title it and write it to ``path``."""
     for ax in axes[1]:
         ax.set_xlabel("t (s)")
-    fig.suptitle("3D dam break against a box (SPHERIC test 2): pressure on the box's face")
+    fig.suptitle(f"3D dam break against a box (SPHERIC test 2): {what}")
     fig.tight_layout()
-    fig.savefig(out / "dam_break_obstacle_pressure.png", dpi=100)
+    fig.savefig(path, dpi=100)
     plt.close(fig)
-    return metrics
 
 
 def channel_velocity(y, U: float, D: float):

@@ -13,11 +13,25 @@ from sphcore.scene import load_scene
 from conftest import CONFIGS, validation_lines
 
 
+def _cites(path, commit: str) -> bool:
+    """Whether a data file's comment header names the paper and the source's commit."""
+    header = [line for line in path.read_text().splitlines() if line.startswith("#")]
+    return any("Kleefsman" in line and "2005" in line for line in header) and any(commit in line for line in header)
+
+
+def test_a_record_with_another_header_or_times_out_of_order_is_refused(tmp_path):
+    bad = tmp_path / "record.csv"
+    bad.write_text("# a comment\nt_s,P1_Pa,P2_Pa\n0.1,1,2\n")
+    with pytest.raises(ValueError, match=r"header 't_s,P1_Pa,P2_Pa', expected 't_s,P1_Pa,P2_Pa,P3_Pa,P4_Pa'"):
+        load_marin_pressure(bad)
+    bad.write_text("t_s,H1_m,H2_m,H3_m,H4_m\n0.2,0,0,0,0.5\n0.1,0,0,0,0.5\n")
+    with pytest.raises(ValueError, match="the times do not increase"):
+        load_marin(bad)
+
+
 def test_the_marin_records_load_as_copied():
     # Given the down-sampled copy (its header cites the paper, the source file and its commit)
-    header = MARIN_DATA.read_text().splitlines()[:15]
-    assert any("Kleefsman" in line and "2005" in line for line in header)
-    assert any("b2dffb32cd56e3eee14e2c6863ac4951ce9f29c8" in line for line in header)
+    assert _cites(MARIN_DATA, "b2dffb32cd56e3eee14e2c6863ac4951ce9f29c8")
     # When it loads
     t, h = load_marin()
     # Then every row is there, in increasing time, about 50 a second over 0-7.38 s
@@ -36,9 +50,7 @@ def test_the_marin_records_load_as_copied():
 
 def test_the_marin_pressure_records_load_as_copied():
     # Given the copied rows (the header cites the paper, the source file and its commit)
-    header = MARIN_PRESSURE_DATA.read_text().splitlines()[:16]
-    assert any("Kleefsman" in line and "2005" in line for line in header)
-    assert any("665d90114a1720051144133a3a0acc2a4aaa7b2f" in line for line in header)
+    assert _cites(MARIN_PRESSURE_DATA, "665d90114a1720051144133a3a0acc2a4aaa7b2f")
     # When they load
     t, p = load_marin_pressure()
     # Then every row is there: ~1 kHz from 0.30 to 1.40 s, covering the window of the measures
