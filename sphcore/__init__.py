@@ -80,3 +80,7 @@ def _use_versioned_numba_cache():
 
 
 _use_versioned_numba_cache()
+
+from sphcore import faster_compile  # noqa: E402  (after the cache folder is chosen)
+
+faster_compile.patch_cpu()

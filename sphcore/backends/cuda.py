@@ -37,10 +37,12 @@ from sphcore import grid as grid_mod
 from sphcore import state as state_fields
 from sphcore.backends import BackendUnavailable
 from sphcore.backends.engine import Engine
+from sphcore import faster_compile
 from sphcore.backends.generate import cuda_source
 from sphcore.stages import ARGUMENTS, CHOICES, MAX_REDUCED, STAGES, covering_choices, reduction_slots
 
 SIMULATOR = bool(numba.config.ENABLE_CUDASIM)
+faster_compile.patch_cuda()  # numba-cuda's inliner copies in linear time (sphcore/faster_compile.py)
 BLOCK = 128          # threads per block for row kernels
 SCAN_CHUNK = 64      # elements scanned sequentially by one thread in the prefix scan
 
