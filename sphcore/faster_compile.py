@@ -29,22 +29,22 @@ import copy
 import functools
 import os
 
-_ATOMS = (str, int)
-
-
 def _flat_sets(x) -> bool:
     """Whether ``x`` is a dict of sets whose members are strings, integers or tuples of them: what
-    ``copy.deepcopy`` copies as ``{k: set(v)}`` (it returns such members unchanged)."""
+    ``copy.deepcopy`` copies as ``{k: set(v)}`` (it returns such members unchanged). Plain loops:
+    this check runs over every member of the table on every round."""
     if type(x) is not dict:
         return False
     for members in x.values():
         if type(members) is not set:
             return False
         for m in members:
-            if type(m) is tuple:
-                if not all(type(a) in _ATOMS for a in m):
-                    return False
-            elif type(m) not in _ATOMS:
+            t = type(m)
+            if t is tuple:
+                for a in m:
+                    if type(a) is not str and type(a) is not int:
+                        return False
+            elif t is not str and t is not int:
                 return False
     return True
 
