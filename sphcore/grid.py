@@ -282,7 +282,9 @@ def gather_rows_1d(src, perm, dst):
 def _scan_range(store_all, i, lo, hi, x, xi, yi, zi, H2, period, periodic, nbr, count, cap):
     """Append to row i of ``nbr`` every j != i in [lo, hi) within the support; count past the
     capacity so the caller can grow it and rebuild. Row i itself lies in one range only (its own
-    cell's), which is scanned on either side of it: no candidate is compared with i."""
+    cell's), which is scanned on either side of it: no candidate is compared with i. (Two call
+    sites of _scan_span, each a copy of its body: a loop over the spans with one call compiled
+    faster but built the 49k dam break's list 10 % slower.)"""
     if lo <= i < hi:
         count = _scan_span(store_all, i, lo, i, x, xi, yi, zi, H2, period, periodic, nbr, count, cap)
         return _scan_span(store_all, i, i + 1, hi, x, xi, yi, zi, H2, period, periodic, nbr, count, cap)
@@ -378,29 +380,40 @@ def neighbour_row(periodic, store_all, i, x, contiguous, cell_begin, cell_end, o
             right = 0
             while right < reach and gyz + _face_gap2(right + 1, xi, x_lo, cell[0]) < H2:
                 right += 1
-            if contiguous and (not px or (ix >= reach and ix + reach < nx)):
-                lo = max(ix - left, 0)
-                hi = min(ix + right, nx - 1)
-                count = _scan_range(store_all, i, cell_begin[row + lo], cell_end[row + hi], x, xi, yi, zi,
-                                    H2, period, periodic, nbr, count, cap)
-            else:
-                # cell by cell, but cells whose rows follow one another in memory are scanned as one
-                # range (a peer's owned cells of the row, or its ghost cells: each kind is stored in
-                # cell order): the same rows in the same order as cell by cell, in fewer, longer scans
-                run_lo = 0
-                run_hi = 0
-                for dx in range(-left, right + 1):
-                    cx = ix + dx
-                    if cx < 0 or cx >= nx:
-                        if not px:
-                            continue
-                        cx = (cx + nx) % nx
-                    begin = cell_begin[row + cx]
-                    if begin != run_hi:
-                        count = _scan_range(store_all, i, run_lo, run_hi, x, xi, yi, zi, H2, period, periodic,
-                                            nbr, count, cap)
-                        run_lo = begin
-                    run_hi = cell_end[row + cx]
+            # The cells -left..right of the row as ranges of rows, each scanned once, in order: where
+            # the row's cells are stored one after another (and no periodic wrap splits them), one
+            # range; otherwise cell by cell, but cells whose rows follow one another in memory (a
+            # peer's owned cells of the row, or its ghost cells: each kind is stored in cell order)
+            # make one range. The same rows in the same order as cell by cell, in fewer, longer
+            # scans, through one call site of _scan_range: numba copies an inlined body into each
+            # call site, and with three (one per case, one for the last range) the list builder
+            # compiled in 18.8 s instead of 7.2 s, to the same speed.
+            one_range = contiguous and (not px or (ix >= reach and ix + reach < nx))
+            k = -left  # the next cell of the row to look at
+            while k <= right:
+                if one_range:
+                    run_lo = cell_begin[row + max(ix - left, 0)]
+                    run_hi = cell_end[row + min(ix + right, nx - 1)]
+                    k = right + 1
+                else:
+                    run_lo = -1
+                    run_hi = -1
+                    while k <= right:
+                        cx = ix + k
+                        if cx < 0 or cx >= nx:
+                            if not px:
+                                k += 1
+                                continue
+                            cx = (cx + nx) % nx
+                        begin = cell_begin[row + cx]
+                        if run_lo >= 0 and begin != run_hi:
+                            break  # cell k starts the next range
+                        if run_lo < 0:
+                            run_lo = begin
+                        run_hi = cell_end[row + cx]
+                        k += 1
+                    if run_lo < 0:
+                        break  # the rest of the row lies outside the grid
                 count = _scan_range(store_all, i, run_lo, run_hi, x, xi, yi, zi, H2, period, periodic, nbr, count,
                                     cap)
     counts[i] = count
