@@ -239,4 +239,11 @@ def main(names):
 
 if __name__ == "__main__":
     os.chdir(ROOT)
+    if os.environ.get("NUMBA_ENABLE_CUDASIM") == "1":
+        # numba's simulator runs every thread of a block as a Python thread, and its block manager polls
+        # them in a loop that holds the GIL: each handoff waited out Python's switch interval (5 ms),
+        # which made the block reductions' syncthreads most of a case's time. At 0.3 ms the 2D DFSPH
+        # over two peers took 35 s instead of 136 s and open_f64 13.5 s instead of 34.4 s, the same
+        # differences (2026-12-07); the simulated arithmetic does not depend on the thread schedule.
+        sys.setswitchinterval(3e-4)
     main(sys.argv[1:])
