@@ -33,8 +33,9 @@ TOL = {"f64": {"x": 1e-12, "v": 1e-12, "rho": 1e-12, "p": 1e-12, "a": 1e-11},
 # wait for the fixture, so the second core would otherwise idle through it). Every simulated thread is
 # Python, so the cases are small (tests/cuda_parity.py: the tiny scene at 117 particles, the 2D scenes
 # at 90-240), one or two blocks of threads each: with the CPU drivers already compiled, each default
-# case takes 8-25 s on one core of the development machine and the 2D DFSPH across two peers 46 s
-# (2026-12-04; tiny_f64 took 160 s at the tiny scene's own 498 particles). The slow tier adds the 3D
+# case takes 5-24 s on one core and the 2D DFSPH across two peers 35-46 s (2026-12-07, with the
+# simulator's GIL handed over every 0.3 ms: cuda_parity.py; tiny_f64 took 160 s at the tiny scene's
+# own 498 particles on 2026-12-04). The slow tier adds the 3D
 # DFSPH cases (one process, two peers, two walking peers), the obstacle and the carried density's own
 # case (walk_terms_f64 carries the density already).
 GROUPS = (["dfsph_peers_2d_f64", "open_f64", "tiny_f64", "terms_f64", "difference_f64"],
