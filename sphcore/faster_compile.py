@@ -29,6 +29,7 @@ import copy
 import functools
 import os
 
+
 def _flat_sets(x) -> bool:
     """Whether ``x`` is a dict of sets whose members are strings, integers or tuples of them: what
     ``copy.deepcopy`` copies as ``{k: set(v)}`` (it returns such members unchanged). Plain loops:

@@ -33,11 +33,11 @@ import numpy as np
 from numba import cuda
 
 from sphcore import decomposition
+from sphcore import faster_compile
 from sphcore import grid as grid_mod
 from sphcore import state as state_fields
 from sphcore.backends import BackendUnavailable
 from sphcore.backends.engine import Engine
-from sphcore import faster_compile
 from sphcore.backends.generate import cuda_source
 from sphcore.stages import ARGUMENTS, CHOICES, MAX_REDUCED, STAGES, covering_choices, reduction_slots
 
