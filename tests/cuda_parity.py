@@ -244,6 +244,8 @@ if __name__ == "__main__":
         # them in a loop that holds the GIL: each handoff waited out Python's switch interval (5 ms),
         # which made the block reductions' syncthreads most of a case's time. At 0.3 ms the 2D DFSPH
         # over two peers took 35 s instead of 136 s and open_f64 13.5 s instead of 34.4 s, the same
-        # differences (2026-12-07); the simulated arithmetic does not depend on the thread schedule.
+        # differences (2026-12-07). The simulated arithmetic does not depend on the thread schedule once
+        # a block's threads share one shared array: the faster handoffs exposed the simulator's racy
+        # allocation (CI: a garbage statistic, a NaN stop), which backends/cuda.locked_shared_arrays closes.
         sys.setswitchinterval(3e-4)
     main(sys.argv[1:])

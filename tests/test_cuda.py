@@ -235,6 +235,38 @@ def test_importing_never_needs_cuda():
     assert done.stdout.strip() == "False"
 
 
+SHARED_RACE = """
+import threading, time
+import numpy as np
+import sphcore.backends.cuda  # installs the locked allocation under the simulator
+from numba.cuda.simulator import kernelapi
+empty = np.empty
+def slow_empty(*args, **kwargs):
+    time.sleep(0.002)  # the GIL goes to the other threads between a miss and its insert
+    return empty(*args, **kwargs)
+np.empty = slow_empty
+shared, start, got = kernelapi.FakeCUDAShared(0), threading.Barrier(32), []
+def block_thread():
+    start.wait()
+    got.append(shared.array(128, np.int64))
+threads = [threading.Thread(target=block_thread) for _ in range(32)]
+for t in threads: t.start()
+for t in threads: t.join()
+print(len(got), len({id(a) for a in got}))
+"""
+
+
+def test_simulated_threads_of_a_block_share_one_shared_array():
+    """numba's simulator could give two threads of a block two shared arrays (a dict miss, a GIL
+    handoff, a second insert): backends/cuda.locked_shared_arrays. A slow allocation makes the
+    handoff certain; without the lock the simulator gave these 32 threads 13 arrays (2026-12-07)."""
+    env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1")
+    done = subprocess.run([sys.executable, "-c", SHARED_RACE], cwd=ROOT, env=env, capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["32", "1"]
+
+
 def test_backend_cuda_without_gpu_fails_at_once(tmp_path):
     from sphcore.backends import cuda
     if cuda.probe()[0]:

@@ -27,10 +27,13 @@ from __future__ import annotations
 
 import functools
 import re
+import sys
+import threading
 
 import numba
 import numpy as np
 from numba import cuda
+from numba.np import numpy_support
 
 from sphcore import decomposition
 from sphcore import faster_compile
@@ -86,6 +89,43 @@ def _unwrap(a):
     if item is not None and hasattr(item, "_ary"):
         return item._ary
     return a
+
+
+def locked_shared_arrays(shared_class):
+    """Make the simulator's ``cuda.shared.array`` give every thread of a block the same array.
+
+    numba's simulator runs a block's threads as Python threads; each one's ``cuda.shared.array``
+    looks its call site up in a dict and, on a miss, inserts a fresh ``np.empty``. Two threads that
+    both miss (a GIL handoff between the lookup and the insert) get two arrays, and a block
+    reduction then reads the uninitialised half it did not write: CI saw a step statistic of 1.4e14
+    and a NaN stop (2026-12-07, tests/cuda_parity.py dfsph_peers_2d_f64, at the 0.3 ms switch
+    interval that the parity cases run at); an instrumented run here saw one duplicate in 343
+    allocations. The lookup and the insert here hold one lock; the call site is the caller's frame
+    (file, line), as the simulator keys it, without formatting the whole stack."""
+    unlocked = shared_class.array
+    if getattr(unlocked, "locked", False):
+        return
+    lock = threading.Lock()
+
+    def array(self, shape, dtype, alignment=None):
+        if alignment is not None or shape == 0:  # errors, and the dynamic shared memory: one buffer
+            return unlocked(self, shape, dtype, alignment)
+        if isinstance(dtype, numba.types.Type):
+            dtype = numpy_support.as_dtype(dtype)
+        frame = sys._getframe(1)
+        site = (frame.f_code.co_filename, frame.f_lineno)
+        with lock:
+            found = self._allocations.get(site)
+            if found is None:
+                found = self._allocations[site] = np.empty(shape, dtype)
+        return found
+    array.locked = True
+    shared_class.array = array
+
+
+if SIMULATOR:
+    from numba.cuda.simulator import kernelapi
+    locked_shared_arrays(kernelapi.FakeCUDAShared)
 
 
 def _device(fn):
