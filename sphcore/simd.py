@@ -1,4 +1,4 @@
-"""Compress-stores for the CPU's neighbour lists: one AVX-512 instruction sequence tests a chunk of
+"""Packed appends for the CPU's neighbour lists: one AVX-512 instruction sequence tests a chunk of
 candidates and appends those within the support to a list.
 
 The list builder and the skin's filter (grid.py) test each candidate j against row i's support and
