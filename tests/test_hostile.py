@@ -229,7 +229,10 @@ def test_hostile_messages_are_dropped_and_counted_and_the_result_is_unchanged(tm
         attacker.semantic(step)                  # for step `step`, the first after the pause
         attacker.replay(dest=0, step=step - 1)  # peer 0 already used it: a duplicate
         attacker.replay(dest=1, step=step - 1)  # peer 1 waits for step `step`'s resume: an old step
-        acks["held"] = len(attacker.steps_seen) - seen
+        # peer 0's reductions seen meanwhile that are past the held step: none. (Not how many arrived:
+        # a cold suite on 2 cores counted 547 in this window, 2026-12-07, while the run ended with the
+        # undisturbed bits; on a loaded machine this session's subscriber can file earlier steps late.)
+        acks["held"] = [s for s in attacker.steps_seen[seen:] if s > step]
         # The replays were sent last, on the same link, and are dropped on arrival: once each peer has
         # logged its drop, every forged message before it is filed (else the resume could overtake them
         # while peer 0 is still working through the 5000-message flood)
@@ -250,7 +253,7 @@ def test_hostile_messages_are_dropped_and_counted_and_the_result_is_unchanged(tm
         assert np.array_equal(calm[key], hit[key]), key
     # And every command was answered: the pause accepted at the step after
     # which both peers held, the bad value and the second pause rejected with the reason, the resume accepted
-    assert acks["held"] == 0
+    assert acks["held"] == [], acks["held"]
     rc, err = acks["bad value"]
     assert rc == 2 and "sph control: rejected:" in err and "sph.alpha" in err, err
     rc, err = acks["pause again"]
