@@ -15,9 +15,11 @@ Packed in a register, not compress-stored to memory (``llvm.masked.compressstore
 with a memory operand): AMD's Zen 4 runs the memory form as microcode, and on an AMD EPYC
 (2026-12-07, evening) the list filter then took twice the scalar loop's time (the 49k dam break's
 grid stage 12.1-13.9 ms against 5.6-8.6 ms scalar); packed in a register and stored with a mask,
-6.1-8.2 ms. The entries written, and where, are the same either way. The same candidates pass and are stored in the same
-order as by the scalar loop, so the lists are identical whichever path built them (tested in
-tests/test_grid.py), and a run's bits do not depend on the CPU it ran on.
+6.1-8.2 ms. The entries written, and where, are the same either way.
+
+The same candidates pass and are stored in the same order as by the scalar loop, so the lists are
+identical whichever path built them (tested in tests/test_grid.py), and a run's bits do not depend
+on the CPU it ran on.
 
 ``AVX512``: whether this process compiles for a CPU with AVX-512F (the features numba targets,
 sphcore/__init__.py). Without it LLVM would emulate the masked instructions lane by lane, slower

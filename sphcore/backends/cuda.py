@@ -103,8 +103,6 @@ def locked_shared_arrays(shared_class):
     allocations. The lookup and the insert here hold one lock; the call site is the caller's frame
     (file, line), as the simulator keys it, without formatting the whole stack."""
     unlocked = shared_class.array
-    if getattr(unlocked, "locked", False):
-        return
     lock = threading.Lock()
 
     def array(self, shape, dtype, alignment=None):
@@ -119,7 +117,6 @@ def locked_shared_arrays(shared_class):
             if found is None:
                 found = self._allocations[site] = np.empty(shape, dtype)
         return found
-    array.locked = True
     shared_class.array = array
 
 
