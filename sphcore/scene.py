@@ -717,6 +717,14 @@ def parse_override(text: str) -> tuple[list, Any]:
     return path, value
 
 
+def _unindexed(text: str, path: list, at: int):
+    """--set reached an array of tables (path[:at]) with path[at], a key or a dotted digit, not an index."""
+    table = ".".join(str(q) for q in path[:at])
+    rest = ".".join(str(q) for q in path[at + 1 if path[at].isdigit() else at:])
+    raise SceneError(f"--set {text!r}: '{table}' is an array of tables ([[{table}]]); name one by its index, "
+                     f"e.g. {table}[0].{rest}")
+
+
 def apply_override(data: dict, path: list, value, text: str):
     if len(path) < 2 or not isinstance(path[0], str):
         raise SceneError(f"--set {text!r}: expected section.key=value")
@@ -724,16 +732,20 @@ def apply_override(data: dict, path: list, value, text: str):
         raise SceneError(f"--set {text!r}: unknown section '{path[0]}'{_did_you_mean(path[0], SECTIONS)} "
                          f"(sections: {', '.join(SECTIONS)})")
     node = data
-    for seg in path[:-1]:
+    for at, seg in enumerate(path[:-1]):
         if isinstance(seg, int):
             if not isinstance(node, list) or seg >= len(node):
                 raise SceneError(f"--set {text!r}: index {seg} is out of range")
             node = node[seg]
+        elif isinstance(node, list):                               # obstacles.0.density: an array of tables
+            _unindexed(text, path, at)
         else:
             node = node.setdefault(seg, {})
         if not isinstance(node, (dict, list)):
             raise SceneError(f"--set {text!r}: '{seg}' is not a table")
     last = path[-1]
+    if isinstance(node, list) and isinstance(last, str) and not last.isdigit():
+        _unindexed(text, path, len(path) - 1)
     if isinstance(last, int) or not isinstance(node, dict):
         raise SceneError(f"--set {text!r}: expected section.key=value")
     node[last] = value
@@ -1234,7 +1246,8 @@ def _check_motion(s, key: str, item):
     speed = motion.largest_speed(reach) if motion is not None else 0.0
     if not speed < s.sph.sound_speed:  # NaN too (a path of +-1.7e308 m: inf - inf), which >= let through
         what = "path" if item.path else "velocity / amplitude / frequency"
-        raise SceneError(f"{key}.{what}: the wall moves at up to {speed:.3g} m/s, not below "
+        why = "" if speed == speed else " (its rows overflow a float)"
+        raise SceneError(f"{key}.{what}: the wall moves at up to {speed:.3g} m/s{why}, not below "
                          f"sph.sound_speed = {s.sph.sound_speed:g} m/s; a weakly compressible fluid needs walls "
                          "slower than sound (10 x slower for 1 % density error)")
     if motion is not None and s.sph.solver != "wcsph":

@@ -365,6 +365,19 @@ def test_scene_with_bad_override_exits_2(capsys):
     assert cap.err.startswith("sph scene: error: ") and "sph.kernel" in cap.err and "gaussian" in cap.err
 
 
+@pytest.mark.fast
+@pytest.mark.parametrize("override,hint", [
+    ("obstacles.0.density=nan", "obstacles[0].density"),          # a dotted index into [[obstacles]]
+    ("fluid.blocks.0.velocity=[1,0]", "fluid.blocks[0].velocity"),
+    ("obstacles.density=2", "obstacles[0].density"),              # no index at all
+])
+def test_an_override_into_an_array_of_tables_without_an_index_names_the_form(capsys, override, hint):
+    rc = main(["scene", str(ROOT / "configs" / "floating_box_2d.toml"), "--set", override])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.startswith("sph scene: error: --set ") and "array of tables" in err, err
+    assert f"e.g. {hint}" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+
+
 # ---------------------------------------------------------------------------------------------
 # Help
 # ---------------------------------------------------------------------------------------------
