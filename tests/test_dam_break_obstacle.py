@@ -7,7 +7,7 @@ import pytest
 from launch.cli import main
 from launch.validate import (HEIGHT_TOLERANCE, MARIN_DATA, MARIN_END_S, MARIN_GAUGES, MARIN_H4_RETURN_S,
                              MARIN_PRESSURE_DATA, MARIN_PRESSURE_WINDOW, MARIN_SENSORS, PRESSURE_FILTER_S,
-                             height_measures, load_marin, load_marin_pressure, pressure_measures)
+                             height_measures, load_marin, load_marin_pressure, pressure_measures, rise_time)
 from sphcore.scene import load_scene
 
 from conftest import CONFIGS, validation_lines
@@ -77,6 +77,18 @@ def test_the_pressure_measures_of_a_made_up_record():
     assert when == pytest.approx(0.6, abs=0.006)
     lo, hi = MARIN_PRESSURE_WINDOW
     assert impulse == pytest.approx(3000.0 * (hi - 0.5) + 17000.0 * 0.001, rel=0.01)  # over the window only
+
+
+def test_a_rise_is_the_first_sample_past_the_level():
+    t = np.arange(0.3, 0.6, 0.001)
+    p = np.where(t >= 0.45, 2000.0, np.where(t >= 0.4, 900.0, 0.0))
+    assert rise_time(t, p) == pytest.approx(0.45, abs=1e-9)       # 900 Pa is not past 1 kPa
+    assert rise_time(t, p, 500.0) == pytest.approx(0.4, abs=1e-9)
+    assert np.isnan(rise_time(t, np.full_like(t, np.nan)))        # a dry sensor never rises
+    # the record's sensors rise from the floor up, 17-39 ms apart (the note quotes them)
+    t_e, p_e = load_marin_pressure()
+    rises = [rise_time(t_e, p_e[s]) for s in MARIN_SENSORS]
+    assert rises == sorted(rises) and rises[0] == pytest.approx(0.394, abs=0.001)
 
 
 def test_the_gauge_measures_of_a_made_up_record():
