@@ -1233,7 +1233,7 @@ MARIN_RISE_PA = 1000.0
 
 
 def rise_time(t, p, level: float = MARIN_RISE_PA) -> float:
-    """The first time a signal exceeds ``level`` (nan: never)."""
+    """The first time a signal exceeds ``level`` (nan: never): a sensor's rise, a gauge's arrival."""
     above = np.flatnonzero(np.nan_to_num(np.asarray(p, dtype=float)) > level)
     return float(np.asarray(t, dtype=float)[above[0]]) if above.size else float("nan")
 
@@ -1256,8 +1256,7 @@ def height_measures(t, h, gauge: str) -> tuple[float, float, float, float]:
     peak, when, impulse = peak_and_impulse(t, h, 0.0, MARIN_END_S)
     if gauge == "H4":
         peak, when, _ = peak_and_impulse(t, h, MARIN_H4_RETURN_S, MARIN_END_S)
-    wet = np.flatnonzero(h > 0.02)
-    return peak, when, impulse, float(t[wet[0]]) if wet.size else float("nan")
+    return peak, when, impulse, rise_time(t, h, 0.02)
 
 
 def dam_break_obstacle(quick: bool, out: Path, backend: str = "cpu", opts: CaseOptions | None = None) -> list[Metric]:
