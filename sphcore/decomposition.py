@@ -24,10 +24,18 @@ import numpy as np
 from numba import njit, prange
 
 
-def choose_dims(n_peers: int, ncell, dim: int, layout: str = "auto", *, reach: int) -> tuple[int, int, int]:
-    """Peers per axis. ``slabs``: all along the axis with the most cells. ``auto``: the factorisation
-    of n_peers into dim factors whose blocks have the smallest halo (surface) per cell, with at
-    least 2 support radii (2 ``reach`` cells) per block along each cut axis."""
+def choose_dims(n_peers: int, ncell, dim: int, layout: str = "auto", *, reach: int, histograms=None,
+                periodic=(False, False, False), vertical: int | None = None) -> tuple[int, int, int]:
+    """Peers per axis. ``slabs``: all along the axis with the most cells. ``auto``: of the
+    factorisations of n_peers into dim factors with at least 2 support radii (2 ``reach`` cells) per
+    block along each cut axis,
+
+    1. one that leaves the ``vertical`` axis (gravity's) uncut, if any does: water falls, so a cut
+       across gravity leaves the upper blocks less and less to do while the cuts stay put;
+    2. then the fewest particles within a support radius of the balanced cuts (``halo_particles``,
+       what the peers hold and send as ghosts every step), given the particles' per-axis counts per
+       cell layer (``histograms``, as ``Decomposition.from_histograms`` takes them);
+    3. then the smallest block surface per cell."""
     ncell = np.asarray(ncell, dtype=np.int64)
     if n_peers < 1:
         raise ValueError(f"need at least one peer, got {n_peers}")
@@ -46,19 +54,40 @@ def choose_dims(n_peers: int, ncell, dim: int, layout: str = "auto", *, reach: i
                     candidates.append((px, py, n_peers // (px * py)) if dim == 3 else (px, py, 1))
     else:
         raise ValueError(f"layout must be 'auto' or 'slabs', got {layout!r}")
-    best, best_cost = None, math.inf
+    best, best_cost = None, (math.inf, math.inf, math.inf)
     for dims in candidates:
         if any(ncell[a] < 2 * reach * dims[a] for a in range(3) if dims[a] > 1):
             continue
         size = ncell / np.asarray(dims)
         surface = sum(2 * math.prod(size[b] for b in range(dim) if b != a) for a in range(dim) if dims[a] > 1)
         surface += 1e-6 * max(dims)  # ties: prefer the more even split (smaller halo per block)
-        if surface < best_cost:
-            best, best_cost = dims, surface
+        particles = 0.0
+        if histograms is not None:
+            dec = Decomposition.from_histograms(tuple(int(n) for n in ncell), dims, histograms, periodic, reach=reach)
+            particles = halo_particles(dec, histograms)
+        cost = (int(vertical is not None and dims[vertical] > 1), particles, surface)
+        if cost < best_cost:
+            best, best_cost = dims, cost
     if best is None:
         raise ValueError(f"{n_peers} peers do not fit a grid of {ncell.tolist()} cells "
                          f"(each block needs at least {2 * reach} cells, 2 support radii, along every cut axis)")
     return best
+
+
+def halo_particles(dec: "Decomposition", histograms) -> float:
+    """Particles within ``reach`` cells (one support radius) of a cut plane of ``dec``, both sides,
+    summed over its cut planes (a periodic axis cut into blocks also has the plane where it wraps);
+    ``histograms[a]`` (ncell[a],) the particle counts per cell layer along axis a. These are the rows
+    the peers send each other as ghosts every step: a particle near two cut planes counts twice."""
+    total = 0.0
+    for a in range(3):
+        if dec.dims[a] == 1:
+            continue
+        h = np.asarray(histograms[a], dtype=np.float64)
+        planes = list(dec.cuts[a][1:-1]) + ([0] if dec.periodic[a] else [])
+        for c in planes:
+            total += float(h[np.arange(c - dec.reach, c + dec.reach) % len(h)].sum())
+    return total
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,8 @@ import itertools
 import numpy as np
 import pytest
 
-from sphcore.decomposition import Decomposition, choose_dims
+from sphcore.decomposition import Decomposition, choose_dims, halo_particles
+from conftest import scene
 
 
 def all_cells(ncell):
@@ -67,6 +68,36 @@ def test_choose_dims():
         choose_dims(4, (15, 1, 1), 3, "slabs", reach=2)
 
 
+@pytest.mark.fast
+def test_auto_layout_cuts_where_the_fewest_particles_are_near_the_cut():
+    # a column 8 cells long in x, 8 high in y and 12 deep in z in a domain 32 x 12 x 12 cells: by the
+    # blocks' surface x is cut (its face is the domain's smallest), but the column's face across z
+    # (8 x 8 cells) holds fewer particles than its face across x (8 x 12)
+    ncell = (32, 12, 12)
+    cells = np.stack(np.meshgrid(np.arange(8), np.arange(8), np.arange(12), indexing="ij"), -1).reshape(-1, 3)
+    cells = np.repeat(cells, 3, axis=0)  # 3 particles a cell
+    hist = [np.bincount(cells[:, a], minlength=ncell[a]) for a in range(3)]
+    assert choose_dims(2, ncell, 3, "auto", reach=1) == (2, 1, 1)
+    assert choose_dims(2, ncell, 3, "auto", reach=1, histograms=hist) == (1, 1, 2)
+    dec = Decomposition.balanced(ncell, (1, 1, 2), cells, reach=1)
+    assert dec.cuts[2] == (0, 6, 12)
+    assert halo_particles(dec, hist) == 2 * 8 * 8 * 3           # the layers z = 5 and z = 6
+    dec_x = Decomposition.balanced(ncell, (2, 1, 1), cells, reach=1)
+    assert halo_particles(dec_x, hist) == 2 * 8 * 12 * 3        # x = 3 and x = 4
+    # periodic in z: the wrap is a second plane between the two blocks, and z is no longer the best cut
+    dec_p = Decomposition.balanced(ncell, (1, 1, 2), cells, (False, False, True), reach=1)
+    assert halo_particles(dec_p, hist) == 4 * 8 * 8 * 3
+    assert choose_dims(2, ncell, 3, "auto", reach=1, histograms=hist, periodic=(False, False, True)) == (2, 1, 1)
+    # gravity along z: z stays uncut while another layout fits, whatever its halo
+    assert choose_dims(2, ncell, 3, "auto", reach=1, histograms=hist, vertical=2) == (2, 1, 1)
+    assert choose_dims(2, ncell, 3, "auto", reach=1, histograms=hist, vertical=0) == (1, 1, 2)
+    assert choose_dims(2, (3, 3, 12), 3, "auto", reach=1, vertical=2) == (1, 1, 2)   # nothing else fits
+    # with 2 cells a support radius the zone is twice as deep
+    dec2 = Decomposition.balanced((64, 24, 24), (1, 1, 2), cells * 2, reach=2)
+    hist2 = [np.bincount(cells[:, a] * 2, minlength=n) for a, n in enumerate((64, 24, 24))]
+    assert halo_particles(dec2, hist2) == 2 * 8 * 8 * 3
+
+
 def test_balanced_cuts_equalise_particle_counts():
     rng = np.random.default_rng(0)
     ncell = (40, 8, 8)
@@ -111,3 +142,18 @@ def test_zone_code_is_the_owner_and_the_outgoing_zones(dims, periodic, reach):
         for b, q in enumerate(neighbours):
             assert np.array_equal((mask >> b) & 1, dec.outgoing(cells, rank, q).astype(np.int64)), (rank, q)
         assert not (mask >> len(neighbours)).any()
+
+
+@pytest.mark.parametrize("name,dims", [("dam_break", (1, 1, 2)), ("dam_break_2d", (2, 1, 1))])
+def test_the_dam_breaks_are_cut_along_the_floor_where_the_halo_is_smallest(name, dims):
+    # 3D: the column (0.4 x 0.4 x 0.6 m) is cut across z, whose face holds 2/3 of the particles of
+    # the face across x; y (gravity's) stays uncut. 2D: x, as gravity leaves no other choice.
+    from nodes.peer import decomposition_for
+    from sphcore.solver import Simulation
+
+    sc = scene(name, "particles.spacing=0.025" if name == "dam_break" else "particles.spacing=0.02")
+    sim = Simulation(sc, "f64")
+    dec = decomposition_for(sc, sim.grid, 2, sim.state.x)
+    assert dec.dims == dims
+    counts = np.bincount(dec.owner(sim.grid.cells_of(sim.state.x)), minlength=2)
+    assert abs(counts[0] - counts[1]) <= 0.1 * counts.sum()
