@@ -99,3 +99,38 @@ def test_a_term_that_is_off_is_not_run():
     sim.step()
     assert not {"drag", "surface_tension"} & set(sim.timers.samples)
     assert sim.force_terms == ()
+
+
+@pytest.mark.fast
+@pytest.mark.parametrize("n", [0, 1, 255, 257, 1000])
+def test_a_reduction_over_blocks_of_rows_equals_one_over_every_row(n):
+    # the CPU drivers of the stages that are not neighbour passes reduce their rows in blocks
+    # (generate.REDUCE_BLOCKS): the maxima and the count of bad rows equal a plain pass over the rows,
+    # whatever n, on all rows or on a subset, with bad rows anywhere
+    from sphcore.backends.generate import REDUCE_BLOCKS
+    assert not stages.STATISTICS.neighbour_pass and REDUCE_BLOCKS == 256
+    sim = Simulation(load_scene(TG, ["particles.spacing=0.01"]), "f64")
+    s = sim.state
+    assert s.n_owned >= 1000
+    rng = np.random.default_rng(n)
+    s.v[:] = rng.normal(size=s.v.shape)
+    s.a[:] = rng.normal(size=s.a.shape)
+    s.rho[:] = 1000.0 * (1.0 + 0.01 * rng.normal(size=s.rho.shape))
+    bad = rng.choice(n, size=min(n, 3), replace=False) if n else np.empty(0, np.int64)
+    s.v[bad, 0] = np.nan
+    s.n_owned = n
+
+    def expected(rows):
+        good = np.setdiff1d(rows, bad)
+        v2 = (s.v[good] ** 2).sum(axis=1)
+        a2 = (s.a[good] ** 2).sum(axis=1)
+        r = s.rho[good] / 1000.0 - 1.0
+        return (max(0.0, v2.max(initial=0.0)), max(0.0, a2.max(initial=0.0)), max(0.0, r.max(initial=0.0)),
+                len(rows) - len(good))
+
+    def reduced(rows=None):
+        return tuple(sim.engine.run(stages.STATISTICS, rows=rows, rho0=sim.prm.rho0))
+
+    assert reduced() == pytest.approx(expected(np.arange(n)), rel=1e-12)
+    subset = np.arange(0, n, 3, dtype=np.int64)
+    assert reduced(subset) == pytest.approx(expected(subset), rel=1e-12)
