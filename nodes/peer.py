@@ -33,8 +33,8 @@ def decomposition_for(scene, grid, n_peers: int, x=None) -> Decomposition:
     """The starting decomposition of ``scene`` for ``n_peers`` (scene [decomposition] dims/layout):
     cuts balanced by particle count when the initial positions ``x`` are given (every peer has them,
     so every peer computes the same cuts), else uniform. The automatic layout leaves gravity's axis
-    uncut where it can and, given ``x``, cuts where the fewest particles lie within a support radius
-    of a cut (``choose_dims``)."""
+    uncut where it can and, given ``x``, gives the busiest peer the least work: its particles and its
+    share of the halo (``choose_dims``)."""
     dims = scene.decomposition.dims
     if any(dims):
         if int(np.prod(dims)) != n_peers:
@@ -44,11 +44,10 @@ def decomposition_for(scene, grid, n_peers: int, x=None) -> Decomposition:
     ncell = tuple(int(n) for n in grid.ncell)
     cells = None if x is None else grid.cells_of(x)
     if not any(dims):
-        histograms = None if cells is None else [np.bincount(cells[:, a], minlength=ncell[a]) for a in range(3)]
         g = np.abs(np.asarray(scene.forces.gravity[: scene.dim], dtype=np.float64))
         vertical = int(np.argmax(g)) if g.any() else None
         dims = choose_dims(n_peers, grid.ncell, scene.dim, scene.decomposition.layout, reach=grid.reach,
-                           histograms=histograms, periodic=periodic, vertical=vertical)
+                           cells=cells, periodic=periodic, vertical=vertical)
     if x is None:
         return Decomposition.uniform(ncell, dims, periodic, reach=grid.reach)
     return Decomposition.balanced(ncell, dims, cells, periodic, reach=grid.reach)

@@ -24,7 +24,7 @@ import numpy as np
 from numba import njit, prange
 
 
-def choose_dims(n_peers: int, ncell, dim: int, layout: str = "auto", *, reach: int, histograms=None,
+def choose_dims(n_peers: int, ncell, dim: int, layout: str = "auto", *, reach: int, cells=None,
                 periodic=(False, False, False), vertical: int | None = None) -> tuple[int, int, int]:
     """Peers per axis. ``slabs``: all along the axis with the most cells. ``auto``: of the
     factorisations of n_peers into dim factors with at least 2 support radii (2 ``reach`` cells) per
@@ -32,9 +32,11 @@ def choose_dims(n_peers: int, ncell, dim: int, layout: str = "auto", *, reach: i
 
     1. one that leaves the ``vertical`` axis (gravity's) uncut, if any does: water falls, so a cut
        across gravity leaves the upper blocks less and less to do while the cuts stay put;
-    2. then the fewest particles within a support radius of the balanced cuts (``halo_particles``,
-       what the peers hold and send as ghosts every step), given the particles' per-axis counts per
-       cell layer (``histograms``, as ``Decomposition.from_histograms`` takes them);
+    2. then, given the particles' (n, 3) integer ``cells``, the least work for the busiest peer with
+       the cuts balanced (``Decomposition.balanced``): the largest block's particles plus the halo's
+       share of one peer (``halo_particles`` / n_peers, the rows the peers hold and send as ghosts
+       every step). Balancing cuts along each axis apart leaves blocks empty where the particles
+       fill only part of an axis, and a step takes as long as its busiest peer;
     3. then the smallest block surface per cell."""
     ncell = np.asarray(ncell, dtype=np.int64)
     if n_peers < 1:
@@ -54,6 +56,7 @@ def choose_dims(n_peers: int, ncell, dim: int, layout: str = "auto", *, reach: i
                     candidates.append((px, py, n_peers // (px * py)) if dim == 3 else (px, py, 1))
     else:
         raise ValueError(f"layout must be 'auto' or 'slabs', got {layout!r}")
+    histograms = None if cells is None else [np.bincount(cells[:, a], minlength=ncell[a]) for a in range(3)]
     best, best_cost = None, (math.inf, math.inf, math.inf)
     for dims in candidates:
         if any(ncell[a] < 2 * reach * dims[a] for a in range(3) if dims[a] > 1):
@@ -61,11 +64,12 @@ def choose_dims(n_peers: int, ncell, dim: int, layout: str = "auto", *, reach: i
         size = ncell / np.asarray(dims)
         surface = sum(2 * math.prod(size[b] for b in range(dim) if b != a) for a in range(dim) if dims[a] > 1)
         surface += 1e-6 * max(dims)  # ties: prefer the more even split (smaller halo per block)
-        particles = 0.0
-        if histograms is not None:
+        work = 0.0
+        if cells is not None:
             dec = Decomposition.from_histograms(tuple(int(n) for n in ncell), dims, histograms, periodic, reach=reach)
-            particles = halo_particles(dec, histograms)
-        cost = (int(vertical is not None and dims[vertical] > 1), particles, surface)
+            largest = int(np.bincount(dec.owner(cells), minlength=n_peers).max()) if len(cells) else 0
+            work = largest + halo_particles(dec, histograms) / n_peers
+        cost = (int(vertical is not None and dims[vertical] > 1), work, surface)
         if cost < best_cost:
             best, best_cost = dims, cost
     if best is None:

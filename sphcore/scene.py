@@ -371,8 +371,9 @@ class Run:
 
 @dataclass(frozen=True)
 class DecompositionSection:
-    layout: str = spec("auto", "how peers split the domain: auto (gravity's axis uncut where possible, then the fewest "
-                       "particles near a cut) or slabs (along the longest axis)",
+    layout: str = spec("auto", "how peers split the domain: auto (gravity's axis uncut where possible, then the least work "
+                       "for the busiest peer: its particles and its share of the halo) or slabs (along "
+                       "the longest axis)",
                        choices=("auto", "slabs"))
     dims: tuple = spec((0, 0, 0), "peers per axis (px, py, pz); all 0 = chosen from the peer count and layout",
                        length=(3,))

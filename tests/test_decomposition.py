@@ -72,13 +72,13 @@ def test_choose_dims():
 def test_auto_layout_cuts_where_the_fewest_particles_are_near_the_cut():
     # a column 8 cells long in x, 8 high in y and 12 deep in z in a domain 32 x 12 x 12 cells: by the
     # blocks' surface x is cut (its face is the domain's smallest), but the column's face across z
-    # (8 x 8 cells) holds fewer particles than its face across x (8 x 12)
+    # (8 x 8 cells) holds fewer particles than its face across x (8 x 12); both halve the particles
     ncell = (32, 12, 12)
     cells = np.stack(np.meshgrid(np.arange(8), np.arange(8), np.arange(12), indexing="ij"), -1).reshape(-1, 3)
     cells = np.repeat(cells, 3, axis=0)  # 3 particles a cell
     hist = [np.bincount(cells[:, a], minlength=ncell[a]) for a in range(3)]
     assert choose_dims(2, ncell, 3, "auto", reach=1) == (2, 1, 1)
-    assert choose_dims(2, ncell, 3, "auto", reach=1, histograms=hist) == (1, 1, 2)
+    assert choose_dims(2, ncell, 3, "auto", reach=1, cells=cells) == (1, 1, 2)
     dec = Decomposition.balanced(ncell, (1, 1, 2), cells, reach=1)
     assert dec.cuts[2] == (0, 6, 12)
     assert halo_particles(dec, hist) == 2 * 8 * 8 * 3           # the layers z = 5 and z = 6
@@ -87,15 +87,31 @@ def test_auto_layout_cuts_where_the_fewest_particles_are_near_the_cut():
     # periodic in z: the wrap is a second plane between the two blocks, and z is no longer the best cut
     dec_p = Decomposition.balanced(ncell, (1, 1, 2), cells, (False, False, True), reach=1)
     assert halo_particles(dec_p, hist) == 4 * 8 * 8 * 3
-    assert choose_dims(2, ncell, 3, "auto", reach=1, histograms=hist, periodic=(False, False, True)) == (2, 1, 1)
+    assert choose_dims(2, ncell, 3, "auto", reach=1, cells=cells, periodic=(False, False, True)) == (2, 1, 1)
     # gravity along z: z stays uncut while another layout fits, whatever its halo
-    assert choose_dims(2, ncell, 3, "auto", reach=1, histograms=hist, vertical=2) == (2, 1, 1)
-    assert choose_dims(2, ncell, 3, "auto", reach=1, histograms=hist, vertical=0) == (1, 1, 2)
+    assert choose_dims(2, ncell, 3, "auto", reach=1, cells=cells, vertical=2) == (2, 1, 1)
+    assert choose_dims(2, ncell, 3, "auto", reach=1, cells=cells, vertical=0) == (1, 1, 2)
     assert choose_dims(2, (3, 3, 12), 3, "auto", reach=1, vertical=2) == (1, 1, 2)   # nothing else fits
     # with 2 cells a support radius the zone is twice as deep
     dec2 = Decomposition.balanced((64, 24, 24), (1, 1, 2), cells * 2, reach=2)
     hist2 = [np.bincount(cells[:, a] * 2, minlength=n) for a, n in enumerate((64, 24, 24))]
     assert halo_particles(dec2, hist2) == 2 * 8 * 8 * 3
+
+
+@pytest.mark.fast
+def test_auto_layout_does_not_leave_peers_idle_where_the_particles_fill_part_of_an_axis():
+    # the column fills 8 of x's 32 cells: blocks of 2 support radii (2 cells) along x leave at most 4
+    # x-blocks with particles, so 8 x 1 x 2 leaves half the peers empty while 4 x 1 x 4 balances all
+    # 16 (its halo is larger: the smallest halo alone would pick 8 x 1 x 2)
+    ncell = (32, 12, 12)
+    cells = np.stack(np.meshgrid(np.arange(8), np.arange(8), np.arange(12), indexing="ij"), -1).reshape(-1, 3)
+    hist = [np.bincount(cells[:, a], minlength=ncell[a]) for a in range(3)]
+    lopsided = Decomposition.balanced(ncell, (8, 1, 2), cells, reach=1)
+    even = Decomposition.balanced(ncell, (4, 1, 4), cells, reach=1)
+    assert np.count_nonzero(np.bincount(lopsided.owner(cells), minlength=16)) == 8
+    assert np.bincount(even.owner(cells), minlength=16).max() == len(cells) // 16
+    assert halo_particles(lopsided, hist) < halo_particles(even, hist)
+    assert choose_dims(16, ncell, 3, "auto", reach=1, cells=cells, vertical=1) == (4, 1, 4)
 
 
 def test_balanced_cuts_equalise_particle_counts():
