@@ -354,11 +354,13 @@ def _peer_cases(scene_path: Path, dx: float, args) -> list[dict]:
                      "bytes_over_minimum": s.get("bytes_over_minimum"), "imbalance": s.get("imbalance"),
                      "wait_s": [p["wait_s_total"] for p in s.get("per_peer", [])],
                      "neighbour_skin": s["neighbours"].get("skin", 0.0),
-                     "list_builds": s["neighbours"].get("list_builds", s["steps"])}
+                     "list_builds": s["neighbours"].get("list_builds", s["steps"]),
+                     "blocks": [len(c) - 1 for c in s["per_peer"][0]["cuts"]] if s.get("per_peer") else [1, 1, 1]}
                 out.append(r)
                 extra = ""
                 if peers > 1:
-                    extra = (f"  {r['bytes_sent_per_step'] / 1e3:.1f} kB/step ({r['bytes_over_minimum']:.3f}x the "
+                    extra = (f"  blocks {'x'.join(str(b) for b in r['blocks'])}, "
+                             f"{r['bytes_sent_per_step'] / 1e3:.1f} kB/step ({r['bytes_over_minimum']:.3f}x the "
                              f"halo minimum), waiting {', '.join(f'{w:.2f}' for w in r['wait_s'])} s")
                 if r["neighbour_skin"]:
                     extra += f"  skin={r['neighbour_skin']:g} ({r['list_builds']} list builds)"

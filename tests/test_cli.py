@@ -518,3 +518,15 @@ def test_backend_cuda_without_the_extra_names_it(monkeypatch, tmp_path, capsys):
     err = capsys.readouterr().err
     assert rc == 2 and "sphfluid[cuda]" in err and "pip install" in err, err
     assert not (tmp_path / "out").exists()
+
+
+def test_bench_peers_says_how_the_peers_split_the_domain(tmp_path, capsys):
+    # each multi-peer line names the blocks (the automatic layout: the dam break's width is cut)
+    out = tmp_path / "bench.json"
+    rc = main(["bench", "--sizes", "3000", "--precisions", "f32", "--threads", "1", "--peers", "1", "2",
+               "--steps", "3", "--json", str(out)])
+    assert rc == 0
+    lines = [x for x in capsys.readouterr().out.splitlines() if "peer(s) x" in x]
+    assert len(lines) == 2 and "blocks" not in lines[0] and "blocks 1x1x2," in lines[1], lines
+    runs = [r for r in json.loads(out.read_text())["results"] if "peers" in r]
+    assert [r["blocks"] for r in runs] == [[1, 1, 1], [1, 1, 2]]
