@@ -50,7 +50,7 @@ def _combine(kind: str, acc: str, value: str) -> str:
     return f"{acc} += {value}" if REDUCTIONS[kind][1] == "+" else f"{acc} = max({acc}, {value})"
 
 
-BUFFER = {"int64": "ints", "float64": "reals"}  # the per-block tables (CPU) and result buffers (CUDA: out_*)
+BUFFER = {"int64": "ints", "float64": "reals"}  # the tables (CPU: per row or per block) and result buffers (CUDA: out_*)
 REDUCE_BLOCKS = 256  # blocks of rows a CPU driver reduces apart (cpu_source): far more than cores
 
 
